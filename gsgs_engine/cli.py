@@ -1,0 +1,72 @@
+"""`gsgs` / `python -m gsgs_engine`: one entry point, one module per subcommand.
+
+Each command module exposes `add_arguments(parser)` and `run(args) -> int`; modules are
+imported only when their command runs, so `gsgs --help` stays fast and torch-free.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from gsgs_engine import GsgsError, __version__
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("gsgs_engine.train.command", "train a Gaussian-splat scene from sparse views (the main job)"),
+    "eval": ("gsgs_engine.train.eval_command", "re-evaluate a trained result on a scene's test views"),
+    "sfm": ("gsgs_engine.sfm_command", "photos -> cameras + sparse points (pycolmap)"),
+    "run-job": ("gsgs_engine.job_command", "run a job folder written by the Blender add-on or a script"),
+    "build-ext": ("gsgs_engine.render.cpu_backend", "build the compiled CPU rasteriser"),
+}
+BENCHMARKS: dict[str, tuple[str, str]] = {
+    "rasterizer": ("gsgs_engine.render.bench", "forward / backward time and memory of each rasteriser backend"),
+}
+
+
+def _add_command(subparsers, name: str, module: str, help_text: str) -> None:
+    parser = subparsers.add_parser(name, help=help_text, description=help_text)
+    mod = importlib.import_module(module)
+    mod.add_arguments(parser)
+    parser.set_defaults(_run=mod.run)
+
+
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="gsgs", description="Generative Sparse-view Gaussian Splatting")
+    parser.add_argument("--version", action="version", version=f"gsgs {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    # Only the chosen command's module is imported (they may pull in heavy dependencies).
+    wanted = next((a for a in argv if not a.startswith("-")), None)
+    for name, (module, help_text) in COMMANDS.items():
+        if name == wanted:
+            _add_command(sub, name, module, help_text)
+        else:
+            sub.add_parser(name, help=help_text, add_help=False)
+    bench = sub.add_parser("bench", help="measured benchmarks (print a table, write JSON)")
+    bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK")
+    bench_wanted = argv[argv.index("bench") + 1] if wanted == "bench" and len(argv) > argv.index("bench") + 1 else None
+    for name, (module, help_text) in BENCHMARKS.items():
+        if name == bench_wanted:
+            _add_command(bench_sub, name, module, help_text)
+        else:
+            bench_sub.add_parser(name, help=help_text, add_help=False)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    run = getattr(args, "_run", None)
+    if run is None:
+        parser.print_help()
+        return 0 if not argv else 2
+    try:
+        return int(run(args) or 0)
+    except GsgsError as exc:
+        print(f"gsgs: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gsgs: interrupted", file=sys.stderr)
+        return 130

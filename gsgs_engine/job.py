@@ -1,0 +1,192 @@
+"""The job folder: the contract between the add-on (or any script / scheduler) and the engine.
+
+    job.json          schema version, task (sfm | train | validate), data, settings
+    progress.jsonl    one JSON object a line: phase, step, total, losses, eta_s, message
+    status.json       written last, atomically: ok | error | cancelled, with a message
+    result/           point_cloud.ply, metrics.json, pseudo/round_k/*.png, renders
+    checkpoints/      enough to resume after a crash or a cancel
+    log.txt
+
+Standard library + numpy only: Blender's Python imports this module.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gsgs_engine import GsgsError
+
+SCHEMA_VERSION = 1
+TASKS = ("sfm", "train", "validate")
+STATES = ("running", "ok", "error", "cancelled")
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON so a reader never sees a half-written file (temp file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=2, sort_keys=False, default=_json_default)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _json_default(obj: Any) -> Any:
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
+
+
+@dataclass
+class Job:
+    """A job folder. `Job.create(...)` writes job.json; `Job.open(dir)` reads and validates it."""
+
+    root: Path
+    spec: dict = field(default_factory=dict)
+
+    # -- paths ------------------------------------------------------------------------
+    @property
+    def spec_path(self) -> Path:
+        return self.root / "job.json"
+
+    @property
+    def progress_path(self) -> Path:
+        return self.root / "progress.jsonl"
+
+    @property
+    def status_path(self) -> Path:
+        return self.root / "status.json"
+
+    @property
+    def result_dir(self) -> Path:
+        return self.root / "result"
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.root / "checkpoints"
+
+    @property
+    def log_path(self) -> Path:
+        return self.root / "log.txt"
+
+    @property
+    def cancel_path(self) -> Path:
+        """The add-on asks a running job to stop by creating this file (works on every OS)."""
+        return self.root / "cancel.request"
+
+    @property
+    def task(self) -> str:
+        return self.spec["task"]
+
+    # -- creation / reading -----------------------------------------------------------
+    @classmethod
+    def create(cls, root: str | os.PathLike, task: str, data: dict | None = None,
+               settings: dict | None = None, **extra: Any) -> "Job":
+        if task not in TASKS:
+            raise GsgsError(f"unknown job task {task!r}; expected one of {', '.join(TASKS)}")
+        root = Path(root)
+        root.mkdir(parents=True, exist_ok=True)
+        spec = {"schema_version": SCHEMA_VERSION, "task": task, "data": data or {},
+                "settings": settings or {}, "created": time.time(), **extra}
+        write_json_atomic(root / "job.json", spec)
+        return cls(root=root, spec=spec)
+
+    @classmethod
+    def open(cls, root: str | os.PathLike) -> "Job":
+        root = Path(root)
+        path = root / "job.json"
+        if not path.is_file():
+            raise GsgsError(f"{path}: no job.json here; create the job with the add-on or gsgs_engine.job.Job.create")
+        try:
+            spec = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise GsgsError(f"{path}: not valid JSON ({exc}); recreate the job") from exc
+        version = spec.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise GsgsError(f"{path}: job schema version {version!r}, this engine reads {SCHEMA_VERSION}; "
+                            "recreate the job with this version of the add-on")
+        if spec.get("task") not in TASKS:
+            raise GsgsError(f"{path}: task {spec.get('task')!r} is not one of {', '.join(TASKS)}")
+        return cls(root=root, spec=spec)
+
+    # -- progress and status -------------------------------------------------------------
+    def emit(self, phase: str, step: int = 0, total: int = 0, losses: dict | None = None,
+             eta_s: float | None = None, message: str = "", **extra: Any) -> dict:
+        event = {"time": time.time(), "phase": phase, "step": int(step), "total": int(total),
+                 "losses": losses or {}, "eta_s": eta_s, "message": message, **extra}
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.progress_path, "a") as fh:
+            fh.write(json.dumps(event, default=_json_default) + "\n")
+            fh.flush()
+        return event
+
+    def set_status(self, state: str, message: str = "", **extra: Any) -> None:
+        if state not in STATES:
+            raise ValueError(f"unknown job state {state!r}")
+        write_json_atomic(self.status_path, {"state": state, "message": message, "time": time.time(), **extra})
+
+    def status(self) -> dict | None:
+        return read_status(self.root)
+
+    def cancel_requested(self) -> bool:
+        return self.cancel_path.exists()
+
+    def request_cancel(self) -> None:
+        self.cancel_path.touch()
+
+
+def read_status(root: str | os.PathLike) -> dict | None:
+    path = Path(root) / "status.json"
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, json.JSONDecodeError):
+        return None  # being replaced right now; the next poll sees it
+
+
+class ProgressReader:
+    """Incremental reader of progress.jsonl for a UI timer: each poll returns new events only.
+
+    A partially written last line is kept back until its newline arrives.
+    """
+
+    def __init__(self, root: str | os.PathLike):
+        self.path = Path(root) / "progress.jsonl"
+        self._offset = 0
+        self._pending = b""
+
+    def poll(self) -> list[dict]:
+        try:
+            with open(self.path, "rb") as fh:
+                fh.seek(self._offset)
+                chunk = fh.read()
+        except FileNotFoundError:
+            return []
+        self._offset += len(chunk)
+        data = self._pending + chunk
+        lines = data.split(b"\n")
+        self._pending = lines.pop()  # b"" when the chunk ended with a newline
+        events = []
+        for line in lines:
+            if line.strip():
+                try:
+                    events.append(json.loads(line))
+                except json.JSONDecodeError:
+                    continue
+        return events

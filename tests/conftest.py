@@ -1,0 +1,31 @@
+"""Shared test fixtures. Real data lives in ../shared/data; tests that need it skip clearly."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("GSGS_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def shared_scene(name: str) -> Path:
+    """Path of a scene in ../shared/data, or skip the test saying why."""
+    path = SHARED_DATA / name
+    if not path.exists():
+        pytest.skip(f"real data {path} is absent (a user's checkout has no ../shared); set GSGS_SHARED_DATA")
+    return path
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _few_threads():
+    # The CI machine has 2 cores; keep torch from oversubscribing when tests run.
+    try:
+        import torch
+    except ImportError:  # the add-on tests run without torch
+        yield
+        return
+    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    yield
