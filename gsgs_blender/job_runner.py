@@ -1,0 +1,324 @@
+"""Run engine jobs in a child process and watch them through the job folder.
+
+The add-on never imports torch: it starts `python -m gsgs_engine run-job DIR` with an
+argument list (no shell), sends stdout/stderr to DIR/log.txt, and learns everything else
+from progress.jsonl and status.json. In the UI a bpy.app.timers callback polls; headless
+callers (bpy module, `blender --background`) call `wait()` instead.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from gsgs_engine import GsgsError
+from gsgs_engine.job import Job, ProgressReader, read_status
+
+CANCEL_GRACE_S = 10.0  # the engine checks cancel.request between steps; then we terminate
+KILL_GRACE_S = 5.0  # after terminate(), kill() if the process still has not exited
+TIMER_INTERVAL_S = 0.5
+FINAL_STATES = ("ok", "error", "cancelled")
+
+
+def engine_command(python: str, job_dir: str | os.PathLike) -> list[str]:
+    return [python, "-m", "gsgs_engine", "run-job", str(job_dir)]
+
+
+def engine_env(engine_root: str | os.PathLike | None = None) -> dict:
+    """Environment of the child: the engine's source folder first on PYTHONPATH (for a checkout)."""
+    env = dict(os.environ)
+    # Blender sets these for its own bundled Python; they would break another interpreter.
+    for key in ("PYTHONHOME", "PYTHONNOUSERSITE"):
+        env.pop(key, None)
+    if engine_root:
+        parts = [str(engine_root)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+        env["PYTHONPATH"] = os.pathsep.join(parts)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def log_tail(job_dir: str | os.PathLike, lines: int = 15, max_bytes: int = 16384) -> str:
+    path = Path(job_dir) / "log.txt"
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            size = fh.tell()
+            fh.seek(max(0, size - max_bytes))
+            text = fh.read().decode("utf-8", errors="replace")
+    except FileNotFoundError:
+        return ""
+    return "\n".join(text.splitlines()[-lines:])
+
+
+def format_losses(losses: dict | None) -> str:
+    if not losses:
+        return ""
+    parts = []
+    for key, value in losses.items():
+        parts.append(f"{key} {value:.4g}" if isinstance(value, (int, float)) else f"{key} {value}")
+    return ", ".join(parts)
+
+
+def format_eta(eta_s: float | None) -> str:
+    if eta_s is None or eta_s < 0:
+        return ""
+    eta_s = int(round(eta_s))
+    h, rem = divmod(eta_s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+@dataclass
+class JobRun:
+    """One job folder and (when this session started it) its child process."""
+
+    job_dir: Path
+    process: subprocess.Popen | None = None
+    state: str = "running"  # running | ok | error | cancelled
+    message: str = ""
+    last_event: dict | None = None
+    events: int = 0
+    cancel_at: float | None = None
+    terminate_at: float | None = None
+    on_finish: list[Callable[["JobRun"], None]] = field(default_factory=list)
+    finished_handled: bool = False
+    _reader: ProgressReader | None = None
+
+    def __post_init__(self) -> None:
+        self.job_dir = Path(self.job_dir)
+        self._reader = ProgressReader(self.job_dir)
+
+    # -- reading ------------------------------------------------------------------------
+    @property
+    def finished(self) -> bool:
+        return self.state in FINAL_STATES
+
+    @property
+    def progress(self) -> float:
+        ev = self.last_event or {}
+        total = ev.get("total") or 0
+        return min(1.0, max(0.0, ev.get("step", 0) / total)) if total else 0.0
+
+    @property
+    def phase(self) -> str:
+        return (self.last_event or {}).get("phase", "starting" if self.state == "running" else self.state)
+
+    def summary(self) -> dict:
+        ev = self.last_event or {}
+        return {"state": self.state, "message": self.message or ev.get("message", ""), "phase": self.phase,
+                "progress": self.progress, "step": ev.get("step", 0), "total": ev.get("total", 0),
+                "losses": format_losses(ev.get("losses")), "eta": format_eta(ev.get("eta_s"))}
+
+    def poll(self) -> list[dict]:
+        """Read new progress events and settle the state when the process has exited."""
+        new = self._reader.poll()
+        if new:
+            self.last_event = new[-1]
+            self.events += len(new)
+        if self.finished:
+            return new
+        now = time.monotonic()
+        if self.process is None:
+            status = read_status(self.job_dir) or {}
+            if status.get("state") in FINAL_STATES:
+                self._settle(status.get("state"), status.get("message", ""))
+            return new
+        rc = self.process.poll()
+        if rc is None:
+            if self.cancel_at is not None and self.terminate_at is None and now - self.cancel_at > CANCEL_GRACE_S:
+                self.process.terminate()
+                self.terminate_at = now
+            elif self.terminate_at is not None and now - self.terminate_at > KILL_GRACE_S:
+                self.process.kill()
+            return new
+        new += self._reader.poll()  # lines written just before exit
+        if new:
+            self.last_event = new[-1]
+        status = read_status(self.job_dir) or {}
+        state, message = status.get("state"), status.get("message", "")
+        if state in FINAL_STATES:
+            self._settle(state, message)
+        elif self.cancel_at is not None:
+            Job(root=self.job_dir).set_status("cancelled", "cancelled: the engine was stopped after a grace period")
+            self._settle("cancelled", "cancelled: the engine was stopped after a grace period")
+        else:
+            tail = log_tail(self.job_dir, lines=3).strip().replace("\n", " | ")
+            msg = f"the engine exited with code {rc} without finishing the job; log.txt ends: {tail or '(empty)'}"
+            Job(root=self.job_dir).set_status("error", msg)
+            self._settle("error", msg)
+        return new
+
+    def _settle(self, state: str, message: str) -> None:
+        self.state, self.message = state, message
+
+    # -- control ------------------------------------------------------------------------
+    def request_cancel(self) -> None:
+        """Ask the engine to stop at its next step; terminate() follows after CANCEL_GRACE_S."""
+        if self.finished:
+            return
+        # The engine sees cancel.request between steps; a process we started is also
+        # terminated by poll() if it has not stopped after the grace period.
+        Job(root=self.job_dir).request_cancel()
+        self.cancel_at = time.monotonic()
+
+    def wait(self, timeout: float | None = None, interval: float = 0.2,
+             on_events: Callable[[list[dict]], None] | None = None) -> str:
+        """Poll until the job finishes (headless use). Returns the final state."""
+        start = time.monotonic()
+        while True:
+            events = self.poll()
+            if events and on_events is not None:
+                on_events(events)
+            if self.finished:
+                return self.state
+            if timeout is not None and time.monotonic() - start > timeout:
+                raise GsgsError(f"{self.job_dir}: job still running after {timeout:.0f} s; see {self.job_dir / 'log.txt'}")
+            time.sleep(interval)
+
+
+# -- starting jobs --------------------------------------------------------------------------------
+RUNS: dict[str, JobRun] = {}
+
+
+def start(job_dir: str | os.PathLike, python: str, engine_root: str | os.PathLike | None = None,
+          on_finish: Callable[[JobRun], None] | None = None, use_timer: bool | None = None,
+          command: list[str] | None = None) -> JobRun:
+    """Start `python -m gsgs_engine run-job job_dir` (or `command`) in the background and register it."""
+    job_dir = Path(job_dir).resolve()
+    Job.open(job_dir)  # validates job.json before a process is spent on it
+    key = str(job_dir)
+    current = RUNS.get(key)
+    if current is not None and not current.finished:
+        raise GsgsError(f"{job_dir}: this job is already running; cancel it first")
+    if not python:
+        raise GsgsError("no engine Python interpreter set; set it in the GS-GS add-on preferences")
+    # A resumed job starts clean: an old cancel request or final status must not end it at once.
+    for stale in (job_dir / "cancel.request", job_dir / "status.json"):
+        if stale.exists():
+            stale.unlink()
+    argv = list(command) if command is not None else engine_command(python, job_dir)
+    with open(job_dir / "log.txt", "ab") as log:
+        log.write(f"\n== gsgs: starting {' '.join(argv)} at {time.ctime()}\n".encode())
+        log.flush()
+        try:
+            process = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT,
+                                       stdin=subprocess.DEVNULL, cwd=str(engine_root or job_dir),
+                                       env=engine_env(engine_root))
+        except OSError as exc:
+            raise GsgsError(f"cannot start the engine interpreter {python!r} ({exc}); "
+                            "set a working Python in the GS-GS add-on preferences") from exc
+    run = JobRun(job_dir=job_dir, process=process)
+    # Skip events a previous run of this folder already wrote; show only this run's.
+    run._reader.poll()
+    run.last_event = None
+    if on_finish is not None:
+        run.on_finish.append(on_finish)
+    RUNS[key] = run
+    if use_timer is None:
+        use_timer = ui_available()
+    if use_timer:
+        ensure_timer()
+    return run
+
+
+def attach(job_dir: str | os.PathLike) -> JobRun:
+    """The run for a job folder: the live one, or a read-only view of a folder from an earlier session."""
+    key = str(Path(job_dir).resolve())
+    run = RUNS.get(key)
+    if run is None:
+        run = JobRun(job_dir=Path(key))
+        status = read_status(key) or {}
+        run.state = status.get("state") if status.get("state") in FINAL_STATES else "unknown" if not status else "detached"
+        run.message = status.get("message", "")
+        events = run._reader.poll()
+        run.last_event = events[-1] if events else None
+        RUNS[key] = run
+    return run
+
+
+def ui_available() -> bool:
+    """True inside an interactive Blender (timers fire); False for the bpy module / --background."""
+    try:
+        import bpy
+    except ImportError:
+        return False
+    return not bpy.app.background
+
+
+def tick_all() -> bool:
+    """Poll every live run once; fire on_finish callbacks. Returns True while any still runs."""
+    alive = False
+    for run in list(RUNS.values()):
+        if run.state not in ("running",):
+            if run.finished and not run.finished_handled:
+                _finish(run)
+            continue
+        run.poll()
+        if run.finished:
+            _finish(run)
+        else:
+            alive = True
+    return alive
+
+
+def _finish(run: JobRun) -> None:
+    run.finished_handled = True
+    for callback in run.on_finish:
+        try:
+            callback(run)
+        except Exception as exc:  # a failed import must not kill the timer for other jobs
+            run.state, run.message = "error", f"{type(exc).__name__} while loading the result: {exc}"
+            print(f"gsgs: {run.job_dir}: {run.message}", file=sys.stderr)
+
+
+def _timer() -> float | None:
+    alive = tick_all()
+    _redraw()
+    return TIMER_INTERVAL_S if alive else None
+
+
+def ensure_timer() -> None:
+    import bpy
+
+    if not bpy.app.timers.is_registered(_timer):
+        bpy.app.timers.register(_timer, first_interval=TIMER_INTERVAL_S, persistent=True)
+
+
+def stop_timer() -> None:
+    try:
+        import bpy
+    except ImportError:
+        return
+    if bpy.app.timers.is_registered(_timer):
+        bpy.app.timers.unregister(_timer)
+
+
+def _redraw() -> None:
+    import bpy
+
+    wm = bpy.context.window_manager
+    for window in getattr(wm, "windows", []):
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+def wait_for(run: JobRun, timeout: float | None = None, echo: bool = True) -> str:
+    """Headless: block until `run` finishes, printing progress lines; then fire callbacks."""
+    def show(events: list[dict]) -> None:
+        if not echo:
+            return
+        ev = events[-1]
+        total = f"/{ev['total']}" if ev.get("total") else ""
+        print(f"gsgs [{ev.get('phase', '')}] {ev.get('step', 0)}{total} {format_losses(ev.get('losses'))} "
+              f"{ev.get('message', '')}".rstrip(), flush=True)
+
+    state = run.wait(timeout=timeout, on_events=show)
+    if not run.finished_handled:
+        _finish(run)
+    return run.state if run.finished else state
