@@ -1,0 +1,99 @@
+"""Gaussian-splat PLY -> a vertices-only mesh with per-point attributes, shown by geometry nodes.
+
+Attributes (point domain): `opacity` (sigmoid of the logit), `scale` (exp of the log
+scale, FLOAT_VECTOR), `rotation` (unit quaternion, QUATERNION), `color` (0.5 + C0 * SH DC,
+FLOAT_COLOR), `sh_dc` and `sh_rest_01..` (raw SH coefficients, FLOAT_VECTOR, one per
+coefficient) and every unknown PLY property (e.g. 4D motion fields) as a FLOAT attribute.
+Everything is written with foreach_set: no Python loop over points.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gsgs_engine import GsgsError
+
+SH_C0 = 0.28209479177387814  # Y_0^0, the constant SH basis function
+DEFAULT_MAX_DISPLAY = 200_000
+RESERVED = {"position", "opacity", "scale", "rotation", "color", "sh_dc", ".select_vert", "sharp_face"}
+# Substrings of per-point properties that 4D (spacetime) results add; kept, not yet played back.
+TEMPORAL_HINTS = ("time", "t_center", "t_scale", "trbf", "motion", "omega", "velocity")
+
+
+def sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+def splat_arrays(g) -> dict[str, tuple[str, np.ndarray]]:
+    """GaussianPly -> {attribute name: (Blender data type, flat float32 array)} (no bpy needed)."""
+    n = g.positions.shape[0]
+    quats = np.asarray(g.quats_wxyz, dtype=np.float64)
+    norm = np.linalg.norm(quats, axis=1, keepdims=True)
+    quats = np.where(norm > 1e-12, quats / np.maximum(norm, 1e-12), np.array([1.0, 0.0, 0.0, 0.0]))
+    rgb = np.clip(0.5 + SH_C0 * np.asarray(g.sh_dc, dtype=np.float64), 0.0, 1.0)
+    rgba = np.concatenate([rgb, np.ones((n, 1))], axis=1)
+    out = {
+        "opacity": ("FLOAT", sigmoid(np.asarray(g.opacity_logits, dtype=np.float64))),
+        "scale": ("FLOAT_VECTOR", np.exp(np.asarray(g.log_scales, dtype=np.float64))),
+        "rotation": ("QUATERNION", quats),
+        "color": ("FLOAT_COLOR", rgba),
+        "sh_dc": ("FLOAT_VECTOR", np.asarray(g.sh_dc)),
+    }
+    rest = np.asarray(g.sh_rest)
+    for k in range(rest.shape[1]):
+        out[f"sh_rest_{k + 1:02d}"] = ("FLOAT_VECTOR", rest[:, k, :])
+    for name, values in (g.extra or {}).items():
+        key = f"ply_{name}" if name in RESERVED or name in out else name
+        out[key] = ("FLOAT", np.asarray(values))
+    return {k: (t, np.ascontiguousarray(v, dtype=np.float32).ravel()) for k, (t, v) in out.items()}
+
+
+def temporal_fields(g) -> list[str]:
+    return sorted(name for name in (g.extra or {}) if any(h in name.lower() for h in TEMPORAL_HINTS))
+
+
+def import_splats(path: str | Path, collection=None, name: str | None = None,
+                  max_display: int = DEFAULT_MAX_DISPLAY, size: float = 1.0, detail: int = 1):
+    """Read a Gaussian PLY and create the splat object; returns (object, seconds spent)."""
+    import bpy
+
+    from gsgs_engine.io.ply import read_gaussian_ply
+
+    from . import node_groups
+
+    path = Path(path)
+    if not path.is_file():
+        raise GsgsError(f"{path}: no such PLY file; pick a Gaussian-splat .ply (e.g. a job's result/point_cloud.ply)")
+    t0 = time.perf_counter()
+    g = read_gaussian_ply(path)
+    n = int(g.positions.shape[0])
+    if n == 0:
+        raise GsgsError(f"{path}: the PLY has no points; train longer or pick another file")
+    arrays = splat_arrays(g)
+
+    mesh = bpy.data.meshes.new(name or path.stem)
+    mesh.vertices.add(n)
+    mesh.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(g.positions, dtype=np.float32).ravel())
+    for attr_name, (data_type, flat) in arrays.items():
+        attr = mesh.attributes.new(attr_name, data_type, "POINT")
+        key = {"FLOAT": "value", "QUATERNION": "value", "FLOAT_VECTOR": "vector", "FLOAT_COLOR": "color"}[data_type]
+        attr.data.foreach_set(key, flat)
+    mesh.update()
+
+    obj = bpy.data.objects.new(name or path.stem, mesh)
+    (collection or bpy.context.scene.collection).objects.link(obj)
+    obj["gsgs_source"] = str(path)
+    obj["gsgs_sh_degree"] = int(g.sh_degree)
+    obj["gsgs_count"] = n
+    temporal = temporal_fields(g)
+    if temporal:
+        obj["gsgs_temporal_fields"] = temporal  # 4D playback is not implemented yet: data kept only
+    node_groups.add_splat_modifier(obj, display_ratio=display_ratio_for(n, max_display), size=size, detail=detail)
+    return obj, time.perf_counter() - t0
+
+
+def display_ratio_for(count: int, max_display: int) -> float:
+    return min(1.0, max_display / count) if count and max_display > 0 else 1.0
