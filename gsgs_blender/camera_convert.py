@@ -1,10 +1,9 @@
 """Blender camera objects <-> gsgs_engine.cameras.Camera (OpenCV convention).
 
-The maths follows Blender's own view-plane computation (BKE_camera_params_compute_viewplane):
-the sensor fit picks which image side the sensor size spans, pixel aspect stretches y, and
-shift_x / shift_y move the view plane in units of that side. The pure functions here take
-and return plain numbers so tests check them without Blender; the `*_object` functions
-apply them to bpy data.
+The maths lives in the engine's numpy-only camera_from_blender / blender_from_camera (one
+tested module for every convention); this file only reads and writes bpy data with it.
+Each camera object also keeps its own image size and pixel aspect as custom properties,
+because a Blender scene has one render resolution but photos may differ.
 """
 
 from __future__ import annotations
@@ -14,94 +13,10 @@ import math
 import numpy as np
 
 from gsgs_engine import GsgsError
-from gsgs_engine.cameras import Camera
+from gsgs_engine.cameras import Camera, blender_from_camera, camera_from_blender
 
-# Blender's camera looks down -Z with +Y up; OpenCV's looks down +Z with +Y down.
-BLENDER_TO_OPENCV_AXES = np.diag([1.0, -1.0, -1.0])
 DEFAULT_SENSOR_MM = 36.0
 
-
-def _effective_fit(sensor_fit: str, width: float, height: float, aspect_x: float, aspect_y: float) -> str:
-    """AUTO resolves to the longer side of the (pixel-aspect corrected) frame, as in Blender."""
-    if sensor_fit == "AUTO":
-        return "HORIZONTAL" if aspect_x * width >= aspect_y * height else "VERTICAL"
-    if sensor_fit not in ("HORIZONTAL", "VERTICAL"):
-        raise GsgsError(f"unknown Blender sensor fit {sensor_fit!r}; use AUTO, HORIZONTAL or VERTICAL")
-    return sensor_fit
-
-
-def intrinsics_from_blender(lens: float, sensor_width: float, sensor_height: float, sensor_fit: str,
-                            shift_x: float, shift_y: float, width: int, height: int,
-                            pixel_aspect_x: float = 1.0, pixel_aspect_y: float = 1.0) -> tuple[float, float, float, float]:
-    """Blender lens/sensor/shift settings of a width x height frame -> (fx, fy, cx, cy) in pixels."""
-    fit = _effective_fit(sensor_fit, width, height, pixel_aspect_x, pixel_aspect_y)
-    # AUTO always measures sensor_width (Blender ignores sensor_height unless the fit is VERTICAL).
-    sensor = sensor_height if sensor_fit == "VERTICAL" else sensor_width
-    ycor = pixel_aspect_y / pixel_aspect_x
-    viewfac = width if fit == "HORIZONTAL" else ycor * height
-    fx = lens * viewfac / sensor
-    fy = fx / ycor
-    cx = 0.5 * width - shift_x * viewfac
-    cy = 0.5 * height + shift_y * viewfac / ycor
-    return fx, fy, cx, cy
-
-
-def blender_from_intrinsics(fx: float, fy: float, cx: float, cy: float, width: int, height: int,
-                            sensor_mm: float = DEFAULT_SENSOR_MM) -> dict:
-    """(fx, fy, cx, cy) of a width x height image -> Blender camera and render settings.
-
-    Pixel aspect is >= 1 in Blender, so the smaller focal length's axis gets aspect 1. The
-    sensor fit is written explicitly (the one AUTO would pick) so later resolution edits do
-    not silently swap the measured side.
-    """
-    if fx <= 0 or fy <= 0:
-        raise GsgsError(f"camera focal lengths must be positive (fx={fx}, fy={fy})")
-    aspect_x, aspect_y = (fy / fx, 1.0) if fy >= fx else (1.0, fx / fy)
-    ycor = aspect_y / aspect_x  # == fx / fy
-    fit = _effective_fit("AUTO", width, height, aspect_x, aspect_y)
-    viewfac = width if fit == "HORIZONTAL" else ycor * height
-    lens = fx * sensor_mm / viewfac
-    return {
-        "lens": lens,
-        "sensor_width": sensor_mm,
-        "sensor_height": sensor_mm,
-        "sensor_fit": fit,
-        "shift_x": (0.5 * width - cx) / viewfac,
-        "shift_y": (cy - 0.5 * height) * ycor / viewfac,
-        "resolution_x": int(width),
-        "resolution_y": int(height),
-        "pixel_aspect_x": aspect_x,
-        "pixel_aspect_y": aspect_y,
-    }
-
-
-def pose_from_blender_matrix(matrix_world) -> tuple[np.ndarray, np.ndarray]:
-    """Blender camera-to-world 4x4 (any object scale) -> OpenCV world-to-camera (R, t)."""
-    m = np.asarray(matrix_world, dtype=np.float64).reshape(4, 4)
-    rot = m[:3, :3]
-    norms = np.linalg.norm(rot, axis=0)
-    if np.any(norms < 1e-12):
-        raise GsgsError("camera object has a zero scale; set its scale back to 1")
-    rot = rot / norms  # object scale does not change where a camera looks
-    c2w_cv = rot @ BLENDER_TO_OPENCV_AXES
-    R = c2w_cv.T
-    t = -R @ m[:3, 3]
-    return R, t
-
-
-def blender_matrix_from_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """OpenCV world-to-camera (R, t) -> Blender camera-to-world 4x4."""
-    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
-    t = np.asarray(t, dtype=np.float64).reshape(3)
-    m = np.eye(4)
-    m[:3, :3] = R.T @ BLENDER_TO_OPENCV_AXES
-    m[:3, 3] = -R.T @ t
-    return m
-
-
-# -- bpy adapters ---------------------------------------------------------------------------
-# Per-object image size and pixel aspect, so cameras with different photos keep their own
-# intrinsics even though a Blender scene has one render resolution.
 PROP_WIDTH, PROP_HEIGHT, PROP_ASPECT, PROP_IMAGE = "gsgs_width", "gsgs_height", "gsgs_pixel_aspect", "gsgs_image"
 
 
@@ -111,9 +26,9 @@ def frame_of(obj, scene) -> tuple[int, int, float, float]:
     if PROP_WIDTH in obj and PROP_HEIGHT in obj:
         width, height = int(obj[PROP_WIDTH]), int(obj[PROP_HEIGHT])
     else:
-        scale = render.resolution_percentage / 100.0
-        width = max(1, int(render.resolution_x * scale))
-        height = max(1, int(render.resolution_y * scale))
+        # Blender's BKE_render_resolution truncates the percentage-scaled size.
+        width = render.resolution_x * render.resolution_percentage // 100
+        height = render.resolution_y * render.resolution_percentage // 100
     if PROP_ASPECT in obj:
         ax, ay = (float(v) for v in obj[PROP_ASPECT])
     else:
@@ -129,18 +44,22 @@ def camera_from_object(obj, scene, name: str | None = None) -> Camera:
     if data.type != "PERSP":
         raise GsgsError(f"camera {obj.name!r} is {data.type.lower()}; set its lens type to Perspective")
     width, height, ax, ay = frame_of(obj, scene)
-    fx, fy, cx, cy = intrinsics_from_blender(data.lens, data.sensor_width, data.sensor_height, data.sensor_fit,
-                                             data.shift_x, data.shift_y, width, height, ax, ay)
-    R, t = pose_from_blender_matrix(obj.matrix_world)
-    cam = Camera(R=R, t=t, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height,
-                 name=name if name is not None else obj.name,
-                 near=float(data.clip_start), far=float(data.clip_end))
-    return cam.validate(f"Blender camera {obj.name!r}")
+    return camera_from_blender(np.asarray(obj.matrix_world), lens=data.lens, sensor_width=data.sensor_width,
+                               sensor_height=data.sensor_height, sensor_fit=data.sensor_fit,
+                               shift_x=data.shift_x, shift_y=data.shift_y, resolution_x=width,
+                               resolution_y=height, resolution_percentage=100, pixel_aspect_x=ax,
+                               pixel_aspect_y=ay, clip_start=float(data.clip_start), clip_end=float(data.clip_end),
+                               name=name if name is not None else obj.name)
 
 
 def apply_camera_to_object(cam: Camera, obj, scene=None, set_scene_frame: bool = False) -> None:
     """Set a Blender camera object's pose and lens so it sees exactly what `cam` sees."""
-    settings = blender_from_intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+    # Written with an explicit fit (the one AUTO picks for this frame), so a later change of the
+    # scene resolution cannot silently swap which side the sensor spans.
+    fit = "HORIZONTAL" if cam.width * max(1.0, cam.fx / cam.fy) >= cam.height * max(1.0, cam.fy / cam.fx) \
+        else "VERTICAL"
+    settings = blender_from_camera(cam, sensor_width=DEFAULT_SENSOR_MM, sensor_height=DEFAULT_SENSOR_MM,
+                                   sensor_fit=fit)
     data = obj.data
     data.type = "PERSP"
     data.lens_unit = "MILLIMETERS"
@@ -157,7 +76,7 @@ def apply_camera_to_object(cam: Camera, obj, scene=None, set_scene_frame: bool =
     obj[PROP_WIDTH] = int(cam.width)
     obj[PROP_HEIGHT] = int(cam.height)
     obj[PROP_ASPECT] = [settings["pixel_aspect_x"], settings["pixel_aspect_y"]]
-    obj.matrix_world = _to_blender_matrix(blender_matrix_from_pose(cam.R, cam.t))
+    obj.matrix_world = _to_blender_matrix(np.asarray(settings["matrix_world"]))
     if set_scene_frame and scene is not None:
         render = scene.render
         render.resolution_x = settings["resolution_x"]
@@ -169,15 +88,14 @@ def apply_camera_to_object(cam: Camera, obj, scene=None, set_scene_frame: bool =
 
 def new_camera_object(cam: Camera, collection, scene=None, name: str | None = None):
     """Create a camera object for `cam` in `collection` and return it."""
-    import bpy  # only the adapters touch bpy; the maths above runs anywhere
+    import bpy
 
     label = name or cam.name or "gsgs_camera"
     data = bpy.data.cameras.new(label)
     obj = bpy.data.objects.new(label, data)
     collection.objects.link(obj)
     apply_camera_to_object(cam, obj, scene)
-    # Frustum drawing size in the viewport, relative to nothing the user set yet.
-    data.display_size = 0.25
+    data.display_size = 0.25  # Blender's default 1.0 swamps a small reconstructed scene
     return obj
 
 

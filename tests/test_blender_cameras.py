@@ -26,43 +26,9 @@ def _random_camera(rng, width=320, height=200, fy_ratio=1.0) -> Camera:
                   width=width, height=height, name="c")
 
 
-@pytest.mark.parametrize("width,height,fy_ratio", [(320, 200, 1.0), (200, 320, 1.0), (320, 200, 1.3),
-                                                   (200, 320, 0.7), (256, 256, 1.1)])
-def test_intrinsics_round_trip_pure(width, height, fy_ratio):
-    rng = np.random.default_rng(width + height)
-    cam = _random_camera(rng, width, height, fy_ratio)
-    s = cc.blender_from_intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, width, height)
-    assert s["pixel_aspect_x"] >= 1.0 and s["pixel_aspect_y"] >= 1.0
-    back = cc.intrinsics_from_blender(s["lens"], s["sensor_width"], s["sensor_height"], s["sensor_fit"],
-                                      s["shift_x"], s["shift_y"], width, height,
-                                      s["pixel_aspect_x"], s["pixel_aspect_y"])
-    np.testing.assert_allclose(back, (cam.fx, cam.fy, cam.cx, cam.cy), rtol=0, atol=1e-9)
-
-
-def test_pose_round_trip_pure():
-    rng = np.random.default_rng(0)
-    for _ in range(10):
-        R, t = _rotation(rng), rng.normal(size=3)
-        m = cc.blender_matrix_from_pose(R, t)
-        # A Blender camera looks down its local -Z: that axis must be OpenCV's +Z (row 2 of R).
-        np.testing.assert_allclose(-m[:3, 2], R[2], atol=1e-12)
-        m_scaled = m.copy()
-        m_scaled[:3, :3] *= 2.5  # object scale must not change the pose
-        R2, t2 = cc.pose_from_blender_matrix(m_scaled)
-        np.testing.assert_allclose(R2, R, atol=1e-12)
-        np.testing.assert_allclose(t2, t, atol=1e-12)
-
-
-def test_centred_default_camera_matches_known_focal():
-    # Blender's default camera: 50 mm on a 36 mm sensor, 1920 px wide -> fx = 50 / 36 * 1920.
-    fx, fy, cx, cy = cc.intrinsics_from_blender(50.0, 36.0, 24.0, "AUTO", 0.0, 0.0, 1920, 1080)
-    assert fx == pytest.approx(50 / 36 * 1920) and fy == pytest.approx(fx)
-    assert (cx, cy) == (960.0, 540.0)
-
-
 def test_bad_fit_is_a_clear_error():
-    with pytest.raises(GsgsError, match="sensor fit"):
-        cc.intrinsics_from_blender(50, 36, 24, "DIAGONAL", 0, 0, 100, 100)
+    with pytest.raises(GsgsError, match="sensor_fit"):
+        cc.camera_from_blender(np.eye(4), 50.0, sensor_fit="DIAGONAL")
 
 
 # -- with the real bpy module ---------------------------------------------------------------
@@ -87,6 +53,25 @@ def test_engine_blender_engine_round_trip(empty_scene, fy_ratio):
     np.testing.assert_allclose(back.t, cam.t, atol=1e-6)
     np.testing.assert_allclose([back.fx, back.fy, back.cx, back.cy], [cam.fx, cam.fy, cam.cx, cam.cy], atol=1e-6 * cam.fx)
     assert (back.width, back.height) == (320, 200)
+    # The scene frame is untouched unless asked; with set_scene_frame it matches the camera.
+    cc.apply_camera_to_object(cam, obj, empty_scene, set_scene_frame=True)
+    assert (empty_scene.render.resolution_x, empty_scene.render.resolution_y) == (320, 200)
+    del obj[cc.PROP_WIDTH], obj[cc.PROP_HEIGHT], obj[cc.PROP_ASPECT]  # now read from the scene
+    again = cc.camera_from_object(obj, empty_scene)
+    np.testing.assert_allclose([again.fx, again.fy, again.cx, again.cy], [cam.fx, cam.fy, cam.cx, cam.cy],
+                               atol=1e-6 * cam.fx)
+
+
+@pytest.mark.blender
+def test_object_scale_does_not_change_the_camera(empty_scene):
+    rng = np.random.default_rng(3)
+    cam = _random_camera(rng)
+    obj = cc.new_camera_object(cam, empty_scene.collection, empty_scene)
+    obj.scale = (2.0, 2.0, 2.0)
+    bpy.context.view_layer.update()
+    back = cc.camera_from_object(obj, empty_scene)
+    np.testing.assert_allclose(back.R, cam.R, atol=1e-6)
+    np.testing.assert_allclose(back.center, cam.center, atol=1e-6)
 
 
 @pytest.mark.blender
