@@ -295,6 +295,8 @@ def test_engine_loader_reads_identical_cameras(tmp_path):
         pytest.skip("gsgs_engine.io.load_scene is not available yet (written by the loader's engineer)")
     scene, train, test, _, _ = _small_dataset(tmp_path)
     loaded = load_scene(tmp_path / "ds", format="blender")
+    # the renderer restored the user's 640x480; compare at the size the dataset was rendered at
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 24, 16, 100
     assert len(loaded.train) == 2 and len(loaded.test) == 1
     rng = np.random.default_rng(1)
     points = rng.uniform(-0.5, 0.5, size=(10, 3))
@@ -308,3 +310,36 @@ def test_engine_loader_reads_identical_cameras(tmp_path):
         assert diff < 1e-3, f"{view.name}: loader camera off Blender's projection by {diff:.2e} px"
         img = view.image()
         assert img.shape == (16, 24, 3) and view.alpha() is not None
+
+
+# -- demo scene --------------------------------------------------------------------------------
+def test_demo_scene_is_deterministic_textured_and_framed():
+    from gsgs_blender.demo_scene import TARGET, build_demo_scene
+
+    def snapshot():
+        demo = build_demo_scene()
+        cams = [np.array(c.matrix_world) for c in demo.train_cameras + demo.test_cameras]
+        return demo, cams, sorted(o.name for o in demo.scene.objects)
+
+    _, cams_a, names_a = snapshot()
+    demo, cams_b, names_b = snapshot()  # the first build's data is freed by the second build
+    assert names_a == names_b and all(np.array_equal(a, b) for a, b in zip(cams_a, cams_b))
+    assert len(demo.train_cameras) == 8 and len(demo.test_cameras) == 25
+    scene = demo.scene
+    tex_types = {n.bl_idname for m in bpy.data.materials if m.node_tree for n in m.node_tree.nodes
+                 if n.bl_idname.startswith("ShaderNodeTex") and n.bl_idname != "ShaderNodeTexCoord"}
+    assert {"ShaderNodeTexChecker", "ShaderNodeTexNoise", "ShaderNodeTexBrick", "ShaderNodeTexWave"} <= tex_types
+    assert any(o.type == "LIGHT" for o in scene.objects) and scene.world is not None
+    # every object above the ground stays inside every frame (square renders, as the demo uses)
+    scene.render.resolution_x = scene.render.resolution_y = 100
+    scene.render.resolution_percentage = 100
+    corners = np.array([list(o.matrix_world @ Vector(c)) for o in demo.objects if o.name != "ground"
+                        for c in o.bound_box])
+    for cam in demo.train_cameras + demo.test_cameras:
+        uv = blender_pixels(scene, cam, corners)
+        assert uv.min() > 0 and uv.max() < 100, f"{cam.name} crops the objects"
+        assert np.allclose(blender_pixels(scene, cam, np.array([TARGET]))[0], (50.0, 50.0), atol=1e-4)
+    # training and test poses differ (test views are novel views)
+    train_c = np.array([c.matrix_world.translation for c in demo.train_cameras])
+    test_c = np.array([c.matrix_world.translation for c in demo.test_cameras])
+    assert np.linalg.norm(train_c[:, None] - test_c[None], axis=-1).min() > 0.1
