@@ -1,0 +1,750 @@
+"""Structure from motion with pycolmap: photos -> cameras + sparse points, and triangulation
+from known poses (the sparse-view protocol's initial point cloud, training views only).
+
+Every pycolmap call runs in a spawned child process. pycolmap's extension exports its own
+zlib symbols, and any zlib user loaded after it in the same process (cv2.imwrite to PNG,
+Pillow, zlib.compress) aborts with a double free; COLMAP also logs verbosely to stderr and
+can abort natively on degenerate input. In a child, the log goes to a file, a native crash
+becomes a GsgsError naming that file, and a cancel request can stop a long stage at once.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing
+import os
+import shutil
+import tempfile
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cameras import Camera
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+# COLMAP camera models whose images pycolmap can undistort to a pinhole camera.
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
+                 "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "FOV", "THIN_PRISM_FISHEYE")
+SFM_STAGES = ("features", "matching", "mapping", "undistortion")
+TRIANGULATION_STAGES = ("features", "matching", "triangulation")
+# Up to this many photos the matcher compares every pair and the mapper uses the
+# permissive thresholds below; a larger set is a video or a capture walk (sequential).
+SMALL_SET = 30
+EXHAUSTIVE_LIMIT = 150
+
+ProgressFn = Callable[[str, int, int, str], None]  # (stage, step, total, message)
+
+
+# ---------------------------------------------------------------------------------------
+# Results
+# ---------------------------------------------------------------------------------------
+@dataclass
+class ViewReport:
+    """What SfM made of one input photo; `reason` says why it is missing from the model."""
+
+    name: str
+    registered: bool
+    reason: str = ""
+    num_features: int = 0
+    num_matched_views: int = 0  # other photos it shares a verified two-view geometry with
+    max_inliers: int = 0  # largest verified match count with any other photo
+
+
+@dataclass
+class SfmResult:
+    out_dir: Path
+    sparse_dir: Path  # COLMAP model of the undistorted (PINHOLE) images: cameras/images/points3D.bin
+    image_dir: Path  # undistorted images named as the input photos
+    cameras: list[Camera]  # registered views, in input order; name = image file name
+    image_paths: list[Path]
+    points: np.ndarray  # (N, 3) float32
+    point_colors: np.ndarray  # (N, 3) float32 in [0, 1]
+    views: list[ViewReport]  # every input photo, in input order
+    skipped_files: list[str]  # files in the folder that are not images
+    mean_reprojection_error: float
+    report_path: Path
+
+    @property
+    def num_registered(self) -> int:
+        return sum(v.registered for v in self.views)
+
+    @property
+    def num_views(self) -> int:
+        return len(self.views)
+
+    @property
+    def failed(self) -> list[ViewReport]:
+        return [v for v in self.views if not v.registered]
+
+    def summary(self) -> str:
+        return f"registered {self.num_registered}/{self.num_views} views"
+
+
+class SfmFailed(GsgsError):
+    """No model could be built; `views` still says what happened to each photo."""
+
+    def __init__(self, message: str, views: list[ViewReport], report_path: Path | None = None):
+        super().__init__(message)
+        self.views = views
+        self.report_path = report_path
+
+
+@dataclass
+class Triangulation:
+    """Points triangulated from known poses. `tracks[i]` is a (k, 3) array of
+    (view index, u, v) observations of point i, in the input views' pixel coordinates."""
+
+    points: np.ndarray  # (N, 3) float32
+    colors: np.ndarray  # (N, 3) float32 in [0, 1]
+    errors: np.ndarray  # (N,) mean reprojection error in pixels
+    tracks: list[np.ndarray] = field(default_factory=list)
+    num_features: list[int] = field(default_factory=list)
+    num_verified_matches: int = 0
+    reason: str = ""  # why there are no (or few) points, empty when all went well
+
+
+# ---------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------
+def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_model: str = "SIMPLE_RADIAL",
+            single_camera: bool = True, max_image_size: int = 1600, progress: ProgressFn | None = None,
+            should_cancel: Callable[[], bool] | None = None, num_threads: int = -1) -> SfmResult:
+    """Recover cameras and sparse points from unposed photos with pycolmap.
+
+    Writes a COLMAP folder: out_dir/images (undistorted), out_dir/sparse/0/*.bin (PINHOLE),
+    out_dir/distorted/ (database and raw models) and out_dir/sfm_report.json. Views that do
+    not register are reported with a reason; raises SfmFailed when no model at all is built.
+    `max_image_size` caps the longest side used for features and for the undistorted images.
+    """
+    photo_dir = Path(photo_dir)
+    out_dir = Path(out_dir)
+    if camera_model not in CAMERA_MODELS:
+        raise GsgsError(f"camera model {camera_model!r} is not supported; use one of {', '.join(CAMERA_MODELS)}")
+    if int(max_image_size) < 64:
+        raise GsgsError(f"max_image_size {max_image_size} is too small; use at least 64 (1600 is a good default)")
+    names, skipped = list_photos(photo_dir)
+    if len(names) < 2:
+        raise GsgsError(f"{photo_dir}: found {len(names)} image(s); structure from motion needs at least 2 "
+                        f"overlapping photos ({', '.join(IMAGE_EXTENSIONS)})")
+    _prepare_out_dir(out_dir, photo_dir)
+    params = {"photo_dir": str(photo_dir.resolve()), "names": names, "out_dir": str(out_dir.resolve()),
+              "camera_model": camera_model, "single_camera": bool(single_camera),
+              "max_image_size": int(max_image_size), "num_threads": int(num_threads)}
+    log_path = out_dir / "colmap.log"
+    started = time.time()
+    raw = _run_in_child("sfm", params, log_path, SFM_STAGES, progress, should_cancel)
+    views = [ViewReport(**v) for v in raw["views"]]
+    report = {"photo_dir": str(photo_dir), "registered": sum(v.registered for v in views), "total": len(views),
+              "camera_model": camera_model, "single_camera": bool(single_camera),
+              "max_image_size": int(max_image_size), "models": raw["model_sizes"],
+              "num_points": int(len(raw.get("points", ()))),
+              "mean_reprojection_error": raw.get("mean_reprojection_error"),
+              "seconds": round(time.time() - started, 2), "skipped_files": skipped,
+              "views": [asdict(v) for v in views], "log": str(log_path)}
+    report_path = out_dir / "sfm_report.json"
+    report_path.write_text(json.dumps(report, indent=2))
+    if not raw["model_sizes"]:
+        raise SfmFailed(f"{photo_dir}: no reconstruction could be built from {len(names)} photos "
+                        f"({_failure_digest(views)}); take more photos with more overlap (60-80% between "
+                        "neighbours), move the camera between shots rather than only rotating it, "
+                        "and avoid blank or blurry frames", views, report_path)
+    cameras, image_paths = [], []
+    for entry in raw["cameras"]:
+        cameras.append(Camera(R=np.array(entry["R"]), t=np.array(entry["t"]), fx=entry["fx"], fy=entry["fy"],
+                              cx=entry["cx"], cy=entry["cy"], width=entry["width"], height=entry["height"],
+                              name=entry["name"]))
+        image_paths.append(out_dir / "images" / entry["name"])
+    return SfmResult(out_dir=out_dir, sparse_dir=out_dir / "sparse" / "0", image_dir=out_dir / "images",
+                     cameras=cameras, image_paths=image_paths,
+                     points=np.asarray(raw["points"], dtype=np.float32).reshape(-1, 3),
+                     point_colors=np.asarray(raw["colors"], dtype=np.float32).reshape(-1, 3),
+                     views=views, skipped_files=skipped,
+                     mean_reprojection_error=float(raw["mean_reprojection_error"]), report_path=report_path)
+
+
+def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None, **options) -> tuple[np.ndarray, np.ndarray]:
+    """Sparse points (N, 3) and colours (N, 3) in [0, 1] from views with KNOWN poses.
+
+    `views`: gsgs_engine.io.scene.View objects (RGBA is composited by View.image()) or
+    (Camera, image HxWx3 float in [0, 1]) pairs. Pass only the training views of a sparse-view
+    benchmark. Returns empty arrays, with a logged reason, when the views do not match.
+    Options: see triangulate_with_known_poses.
+    """
+    result = triangulate_with_known_poses(views, out_dir=out_dir, **options)
+    return result.points, result.colors
+
+
+def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None, max_image_size: int = 1600,
+                                 max_epipolar_error: float = 2.0, max_reprojection_error: float = 2.0,
+                                 min_triangulation_angle: float = 1.5, max_ratio: float = 0.85,
+                                 progress: ProgressFn | None = None,
+                                 should_cancel: Callable[[], bool] | None = None) -> Triangulation:
+    """triangulate_known_poses with the details: per-point errors and tracks, feature counts.
+
+    Matches are verified with the epipolar geometry the known poses imply (Sampson distance
+    below `max_epipolar_error` px) instead of RANSAC: sparse views far apart give too few
+    matches for a robust estimate, but the true geometry needs no estimate. `out_dir` keeps
+    the images, database and triangulated COLMAP model (a temporary folder otherwise).
+    """
+    pairs = _as_camera_image_pairs(views)
+    if len(pairs) < 2:
+        return _empty_triangulation(f"{len(pairs)} view(s) given; triangulation needs at least 2")
+    work = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="gsgs_triangulate_"))
+    try:
+        image_dir = work / "images"
+        if image_dir.exists():
+            shutil.rmtree(image_dir)
+        image_dir.mkdir(parents=True)
+        for stale in ("database.db", "sparse"):
+            _remove(work / stale)
+        entries = []
+        for i, (cam, img) in enumerate(pairs):
+            name = f"{i:04d}.png"
+            _write_png(image_dir / name, img)
+            entries.append({"name": name, "R": cam.R.tolist(), "t": cam.t.tolist(), "fx": cam.fx, "fy": cam.fy,
+                            "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height})
+        params = {"work": str(work.resolve()), "entries": entries, "max_image_size": int(max_image_size),
+                  "max_epipolar_error": float(max_epipolar_error),
+                  "max_reprojection_error": float(max_reprojection_error),
+                  "min_triangulation_angle": float(min_triangulation_angle), "max_ratio": float(max_ratio)}
+        raw = _run_in_child("triangulate", params, work / "colmap.log", TRIANGULATION_STAGES, progress,
+                            should_cancel)
+    finally:
+        if out_dir is None:
+            shutil.rmtree(work, ignore_errors=True)
+    result = Triangulation(points=np.asarray(raw["points"], dtype=np.float32).reshape(-1, 3),
+                           colors=np.asarray(raw["colors"], dtype=np.float32).reshape(-1, 3),
+                           errors=np.asarray(raw["errors"], dtype=np.float64).reshape(-1),
+                           tracks=[np.asarray(t, dtype=np.float64).reshape(-1, 3) for t in raw["tracks"]],
+                           num_features=list(raw["num_features"]),
+                           num_verified_matches=int(raw["num_verified_matches"]), reason=raw["reason"])
+    if result.reason:
+        log.warning("triangulation from %d known poses: %s", len(pairs), result.reason)
+    return result
+
+
+def run_sfm_job(job) -> SfmResult:
+    """Job task "sfm": job.spec["data"]["photos"] -> COLMAP folder in job.result_dir, plus
+    result/cameras.json (Camera.to_dict() + "image") and result/points.ply (xyz + rgb)."""
+    data = job.spec.get("data") or {}
+    settings = job.spec.get("settings") or {}
+    photos = data.get("photos")
+    if not photos:
+        raise GsgsError(f"{job.spec_path}: data.photos is missing; set it to the folder of photos to reconstruct")
+    photos = Path(photos)
+    if not photos.is_absolute():
+        photos = (job.root / photos).resolve()
+    stages = SFM_STAGES + ("export",)
+
+    def report(stage: str, step: int, total: int, message: str) -> None:
+        job.emit("sfm", stages.index(stage) if stage in stages else step, len(stages), message=message,
+                 stage=stage)
+
+    result = run_sfm(photos, job.result_dir, camera_model=settings.get("camera_model", "SIMPLE_RADIAL"),
+                     single_camera=bool(settings.get("single_camera", True)),
+                     max_image_size=int(settings.get("max_image_size", 1600)), progress=report,
+                     should_cancel=job.cancel_requested)
+    if job.cancel_requested():
+        raise KeyboardInterrupt
+    report("export", 0, 0, "writing cameras.json and points.ply")
+    write_cameras_json(job.result_dir / "cameras.json", result.cameras, result.image_paths)
+    write_point_ply(job.result_dir / "points.ply", result.points, result.point_colors)
+    failed = "; ".join(f"{v.name}: {v.reason}" for v in result.failed)
+    job.emit("sfm", len(stages), len(stages), message=result.summary() + (f" ({failed})" if failed else ""),
+             stage="done", registered=result.num_registered, total_views=result.num_views)
+    if result.num_registered < 2:
+        raise GsgsError(f"{photos}: {result.summary()}; add photos that overlap more")
+    job.set_status("ok", result.summary() + (f"; failed: {failed}" if failed else ""))
+    return result
+
+
+# ---------------------------------------------------------------------------------------
+# Plain files (numpy only, no pycolmap)
+# ---------------------------------------------------------------------------------------
+def list_photos(photo_dir: Path) -> tuple[list[str], list[str]]:
+    """(image names, skipped non-image names) in a folder; a photo that cannot be decoded
+    is an error naming it, since SfM on the rest would silently lose a view."""
+    if not photo_dir.is_dir():
+        raise GsgsError(f"{photo_dir}: not a folder; pass the folder that holds the photos")
+    import cv2
+
+    names, skipped = [], []
+    for path in sorted(photo_dir.iterdir()):
+        if path.name.startswith(".") or path.is_dir():
+            continue
+        if path.suffix.lower() not in IMAGE_EXTENSIONS:
+            skipped.append(path.name)
+            continue
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None or img.size == 0:
+            raise GsgsError(f"{path}: cannot be read as an image (corrupt or not really "
+                            f"{path.suffix.lstrip('.').upper()}); re-export it or move it out of the folder")
+        names.append(path.name)
+    return names, skipped
+
+
+def write_cameras_json(path: Path, cameras: Sequence[Camera], image_paths: Sequence[Path]) -> None:
+    entries = [{**cam.to_dict(), "image": str(Path(p).resolve())} for cam, p in zip(cameras, image_paths)]
+    Path(path).write_text(json.dumps(entries, indent=2))
+
+
+def write_point_ply(path: Path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Plain binary little-endian PLY: x y z (float32) red green blue (uchar)."""
+    points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    rgb = np.clip(np.round(np.asarray(colors, dtype=np.float64).reshape(-1, 3) * 255.0), 0, 255).astype(np.uint8)
+    if len(rgb) != len(points):
+        raise ValueError(f"{len(points)} points but {len(rgb)} colours")
+    vertex = np.empty(len(points), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                          ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    vertex["x"], vertex["y"], vertex["z"] = points.T
+    vertex["red"], vertex["green"], vertex["blue"] = rgb.T
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {len(points)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(vertex.tobytes())
+
+
+def _as_camera_image_pairs(views) -> list[tuple[Camera, np.ndarray]]:
+    pairs = []
+    for i, item in enumerate(views):
+        if isinstance(item, tuple) and len(item) == 2:
+            cam, img = item
+            img = np.asarray(img)
+            if img.dtype == np.uint8:
+                img = img.astype(np.float32) / 255.0
+            if img.ndim == 3 and img.shape[2] == 4:  # composite on white, as View.image() does
+                img = img[..., :3] * img[..., 3:4] + (1.0 - img[..., 3:4])
+        else:
+            cam, img = item.camera, item.image()
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise GsgsError(f"view {i} ({cam.name}): expected an HxWx3 image, got shape {img.shape}")
+        if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+            raise GsgsError(f"view {i} ({cam.name}): image is {img.shape[1]}x{img.shape[0]} but the camera "
+                            f"expects {cam.width}x{cam.height}; resize the image or fix the intrinsics")
+        pairs.append((cam.validate(f"view {i}"), img))
+    return pairs
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    import cv2  # safe: this process never loads pycolmap (see module docstring)
+
+    arr = np.asarray(img)
+    if arr.dtype != np.uint8:
+        arr = np.clip(np.round(arr.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    if not cv2.imwrite(str(path), cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)):
+        raise GsgsError(f"{path}: could not write the image; check the folder is writable and has free space")
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+_SFM_OUTPUTS = ("distorted", "sparse", "images", "stereo", "sfm_report.json", "colmap.log",
+                "run-colmap-geometric.sh", "run-colmap-photometric.sh")
+_SFM_MARKER = ".gsgs_sfm"
+
+
+def _prepare_out_dir(out_dir: Path, photo_dir: Path) -> None:
+    """Clear a previous run's outputs (a rerun must not mix models) but never anything else:
+    outputs are removed only from a folder this function marked as an SfM output folder."""
+    photos, out = photo_dir.resolve(), out_dir.resolve()
+    if photos == out or any(photos == out / name or out / name in photos.parents for name in _SFM_OUTPUTS):
+        raise GsgsError(f"{out_dir}: the output folder would overwrite the photos in {photo_dir}; "
+                        "choose another --out folder, e.g. a sibling of the photo folder")
+    existing = [name for name in _SFM_OUTPUTS if (out_dir / name).exists()]
+    if existing and not (out_dir / _SFM_MARKER).exists():
+        raise GsgsError(f"{out_dir}: already holds {', '.join(existing)} not written by gsgs sfm; "
+                        "choose an empty output folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / _SFM_MARKER).write_text("written by gsgs sfm; its outputs here are replaced on the next run\n")
+    for name in existing:
+        _remove(out_dir / name)
+
+
+def _empty_triangulation(reason: str) -> Triangulation:
+    log.warning("triangulation from known poses: %s", reason)
+    return Triangulation(points=np.zeros((0, 3), np.float32), colors=np.zeros((0, 3), np.float32),
+                         errors=np.zeros(0), reason=reason)
+
+
+def _failure_digest(views: list[ViewReport]) -> str:
+    reasons = [f"{v.name}: {v.reason.split(':')[0]}" for v in views if not v.registered]
+    return "; ".join(reasons) if reasons else "no view registered"
+
+
+# ---------------------------------------------------------------------------------------
+# Child process
+# ---------------------------------------------------------------------------------------
+def _run_in_child(task: str, params: dict, log_path: Path, stages: Sequence[str], progress: ProgressFn | None,
+                  should_cancel: Callable[[], bool] | None) -> dict:
+    """Run _TASKS[task](params) in a spawned process, relaying stage messages to `progress`."""
+    log_path = Path(log_path)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    ctx = multiprocessing.get_context("spawn")
+    recv_end, send_end = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child_main, args=(send_end, task, params, str(log_path)), daemon=True)
+    proc.start()
+    send_end.close()  # so recv() sees EOF when the child dies
+    stage = "start"
+    try:
+        while True:
+            if should_cancel is not None and should_cancel():
+                raise KeyboardInterrupt
+            if not recv_end.poll(0.2):
+                if not proc.is_alive() and not recv_end.poll(0):
+                    break
+                continue
+            try:
+                kind, payload = recv_end.recv()
+            except EOFError:
+                break
+            if kind == "stage":
+                stage = payload["stage"]
+                if progress is not None:
+                    step = stages.index(stage) if stage in stages else 0
+                    progress(stage, step, len(stages), payload["message"])
+            elif kind == "done":
+                proc.join()
+                return payload
+            elif kind == "gsgs_error":
+                proc.join()
+                raise GsgsError(payload)
+            elif kind == "error":
+                proc.join()
+                with open(log_path, "a") as fh:
+                    fh.write(payload)
+                last = payload.strip().splitlines()[-1]
+                raise GsgsError(f"pycolmap failed during {stage}: {last} (details in {log_path})")
+    finally:
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+        recv_end.close()
+    proc.join()
+    raise GsgsError(f"pycolmap stopped unexpectedly (exit code {proc.exitcode}) during {stage}; "
+                    f"last log line: {_last_line(log_path)!r} (full log: {log_path})")
+
+
+def _last_line(path: Path) -> str:
+    try:
+        lines = [ln for ln in Path(path).read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    return lines[-1][-200:] if lines else ""
+
+
+def _child_main(conn, task: str, params: dict, log_path: str) -> None:
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+    def emit(stage: str, message: str) -> None:
+        print(f"== gsgs stage {stage}: {message}", flush=True)
+        conn.send(("stage", {"stage": stage, "message": message}))
+
+    try:
+        import zlib  # noqa: F401  -- bind the system zlib before pycolmap's copy (module docstring)
+
+        import pycolmap
+
+        pycolmap.set_random_seed(0)  # same photos, same model
+        result = _TASKS[task](pycolmap, params, emit)
+    except GsgsError as exc:
+        conn.send(("gsgs_error", str(exc)))
+    except BaseException:  # noqa: BLE001 -- everything must reach the parent as text
+        conn.send(("error", traceback.format_exc()))
+    else:
+        conn.send(("done", result))
+    finally:
+        conn.close()
+
+
+def _child_sfm(pycolmap, p: dict, emit) -> dict:
+    photo_dir, out_dir, names = Path(p["photo_dir"]), Path(p["out_dir"]), p["names"]
+    distorted = out_dir / "distorted"
+    distorted.mkdir(parents=True, exist_ok=True)
+    db_path = distorted / "database.db"
+    small = len(names) <= SMALL_SET
+    device = pycolmap.Device.cpu if not pycolmap.has_cuda else pycolmap.Device.auto
+
+    emit("features", f"extracting SIFT features from {len(names)} photos (longest side {p['max_image_size']} px)")
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = p["camera_model"]
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = p["max_image_size"]
+    extraction.num_threads = p["num_threads"]
+    mode = pycolmap.CameraMode.SINGLE if p["single_camera"] else pycolmap.CameraMode.PER_IMAGE
+    pycolmap.extract_features(db_path, photo_dir, image_names=names, camera_mode=mode, reader_options=reader,
+                              extraction_options=extraction, device=device)
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = p["num_threads"]
+    verification = pycolmap.TwoViewGeometryOptions()
+    if small:
+        verification.min_num_inliers = 10
+    if len(names) <= EXHAUSTIVE_LIMIT:
+        emit("matching", f"matching all {len(names) * (len(names) - 1) // 2} photo pairs")
+        pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification,
+                                  device=device)
+    else:
+        emit("matching", f"matching each of {len(names)} photos with its 10 neighbours in name order")
+        pycolmap.match_sequential(db_path, matching_options=matching, verification_options=verification,
+                                  device=device)
+
+    emit("mapping", "incremental mapping")
+    options = _small_set_mapper_options(pycolmap, small, verification.min_num_inliers)
+    options.num_threads = p["num_threads"]
+    options.random_seed = 0
+    options.mapper.random_seed = 0
+    options.triangulation.random_seed = 0
+    models_dir = distorted / "sparse"
+    models_dir.mkdir(parents=True, exist_ok=True)
+    models = pycolmap.incremental_mapping(db_path, photo_dir, models_dir, options=options)
+    ranked = sorted(models.items(), key=lambda kv: (kv[1].num_reg_images(), kv[1].num_points3D()), reverse=True)
+    model_sizes = [int(rec.num_reg_images()) for _, rec in ranked]
+    views = _view_reports(pycolmap, db_path, names, [rec for _, rec in ranked], verification.min_num_inliers)
+    if not ranked:
+        return {"model_sizes": [], "views": views}
+    best_key, best = ranked[0]
+
+    emit("undistortion", f"undistorting {best.num_reg_images()} registered photos to a pinhole camera")
+    undistort = pycolmap.UndistortCameraOptions()
+    undistort.max_image_size = p["max_image_size"]
+    registered_names = [best.image(i).name for i in best.reg_image_ids()]
+    pycolmap.undistort_images(out_dir, models_dir / str(best_key), photo_dir, image_names=registered_names,
+                              output_type="COLMAP", undistort_options=undistort)
+    # undistort_images writes sparse/*.bin; the COLMAP layout loaders expect is sparse/0/.
+    sparse0 = out_dir / "sparse" / "0"
+    sparse0.mkdir(parents=True, exist_ok=True)
+    for f in (out_dir / "sparse").iterdir():
+        if f.is_file():
+            f.replace(sparse0 / f.name)
+    for leftover in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):
+        _remove(out_dir / leftover)
+
+    rec = pycolmap.Reconstruction(sparse0)
+    by_name = {rec.image(i).name: rec.image(i) for i in rec.reg_image_ids()}
+    cameras = []
+    for name in names:
+        image = by_name.get(name)
+        if image is None:
+            continue
+        cam = rec.camera(image.camera_id)
+        fx, fy, cx, cy = (float(v) for v in cam.params[:4])  # undistorted cameras are PINHOLE
+        pose = image.cam_from_world().matrix()
+        cameras.append({"name": name, "R": pose[:, :3].tolist(), "t": pose[:, 3].tolist(), "fx": fx, "fy": fy,
+                        "cx": cx, "cy": cy, "width": int(cam.width), "height": int(cam.height)})
+    ids = list(rec.point3D_ids())
+    points = np.array([rec.point3D(i).xyz for i in ids], dtype=np.float64).reshape(-1, 3)
+    colors = np.array([rec.point3D(i).color for i in ids], dtype=np.float64).reshape(-1, 3) / 255.0
+    return {"model_sizes": model_sizes, "views": views, "cameras": cameras, "points": points, "colors": colors,
+            "mean_reprojection_error": float(rec.compute_mean_reprojection_error())}
+
+
+def _small_set_mapper_options(pycolmap, small: bool, min_matches: int):
+    """COLMAP's defaults assume dozens of photos; with 2-10 the initial pair must be allowed
+    fewer inliers and a smaller baseline, and two-view tracks are most of the structure."""
+    options = pycolmap.IncrementalPipelineOptions()
+    if small:
+        options.min_num_matches = min_matches
+        options.mapper.init_min_num_inliers = 50
+        options.mapper.init_min_tri_angle = 4.0
+        options.mapper.abs_pose_min_num_inliers = 15
+        options.mapper.abs_pose_min_inlier_ratio = 0.15
+        options.triangulation.ignore_two_view_tracks = False
+        options.min_model_size = 2
+    return options
+
+
+def _view_reports(pycolmap, db_path: Path, names: list[str], models: list, min_inliers: int) -> list[dict]:
+    registered_in = {}  # name -> index of the (size-ranked) model holding it
+    for k, rec in enumerate(models):
+        for i in rec.reg_image_ids():
+            registered_in.setdefault(rec.image(i).name, k)
+    with pycolmap.Database.open(db_path) as db:
+        images = {im.name: im for im in db.read_all_images()}
+        id_to_name = {im.image_id: name for name, im in images.items()}
+        features = {name: int(db.num_keypoints_for_image(im.image_id)) if db.exists_keypoints(im.image_id) else 0
+                    for name, im in images.items()}
+        links: dict[str, list[int]] = {name: [] for name in names}
+        pair_ids, geometries = db.read_two_view_geometries()
+        for pair_id, geom in zip(pair_ids, geometries):
+            n = len(geom.inlier_matches)
+            if n < min_inliers:
+                continue
+            for image_id in pycolmap.pair_id_to_image_pair(pair_id):
+                links.setdefault(id_to_name[image_id], []).append(n)
+    reports = []
+    for name in names:
+        nf = features.get(name, 0)
+        matched = links.get(name, [])
+        r = {"name": name, "registered": registered_in.get(name) == 0 and bool(models), "reason": "",
+             "num_features": nf, "num_matched_views": len(matched), "max_inliers": max(matched, default=0)}
+        if r["registered"]:
+            pass
+        elif name not in images:
+            r["reason"] = "not read by COLMAP: the image format is not supported; convert it to JPEG or PNG"
+        elif nf == 0:
+            r["reason"] = "no features: the image is blank or has no texture"
+        elif not matched:
+            r["reason"] = (f"no matches: none of its {nf} features match another photo well enough "
+                           "(too little overlap, or too different in viewpoint or lighting)")
+        elif name in registered_in:
+            size = models[registered_in[name]].num_reg_images()
+            r["reason"] = (f"not registered: it reconstructs only in a separate {size}-view model "
+                           "not connected to the main one")
+        else:
+            r["reason"] = (f"not registered: matched {len(matched)} other photo(s) (best {r['max_inliers']} "
+                           "inliers) but its pose could not be estimated (too few matches or too small a baseline)")
+        reports.append(r)
+    return reports
+
+
+def _child_triangulate(pycolmap, p: dict, emit) -> dict:
+    work = Path(p["work"])
+    image_dir = work / "images"
+    db_path = work / "database.db"
+    entries = p["entries"]
+    emit("features", f"extracting SIFT features from {len(entries)} posed views")
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = p["max_image_size"]
+    # Sparse views are far apart: affine-adapted, scale-pooled SIFT matches across larger
+    # viewpoint changes, and small renders need the extra upsampled octave to find features.
+    extraction.sift.estimate_affine_shape = True
+    extraction.sift.domain_size_pooling = True
+    if max(max(e["width"], e["height"]) for e in entries) <= 400:
+        extraction.sift.first_octave = -2
+    names = [e["name"] for e in entries]
+    pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+
+    emit("matching", f"matching {len(entries) * (len(entries) - 1) // 2} view pairs, "
+                     "verified with the known epipolar geometry")
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.skip_geometric_verification = True
+    matching.sift.max_ratio = p["max_ratio"]
+    pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+
+    reconstruction = pycolmap.Reconstruction()
+    index_of = {}
+    with pycolmap.Database.open(db_path) as db:
+        db_images = {im.name: im for im in db.read_all_images()}
+        num_features = [int(db.num_keypoints_for_image(db_images[n].image_id))
+                        if n in db_images and db.exists_keypoints(db_images[n].image_id) else 0 for n in names]
+        for k, e in enumerate(entries):
+            if e["name"] not in db_images:
+                continue
+            im = db_images[e["name"]]
+            index_of[im.image_id] = k
+            cam = pycolmap.Camera(model="PINHOLE", width=e["width"], height=e["height"],
+                                  params=[e["fx"], e["fy"], e["cx"], e["cy"]], camera_id=im.camera_id)
+            db.update_camera(cam)
+            reconstruction.add_camera_with_trivial_rig(cam)
+            pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(e["R"])), np.asarray(e["t"]))
+            reconstruction.add_image_with_trivial_frame(
+                pycolmap.Image(name=e["name"], camera_id=im.camera_id, image_id=im.image_id), pose)
+        keypoints = {i: db.read_keypoints(i)[:, :2].astype(np.float64) for i in index_of if db.exists_keypoints(i)}
+        pair_ids, raw_matches = db.read_all_matches()
+        verified = 0
+        for pair_id, matches in zip(pair_ids, raw_matches):
+            id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
+            if id1 not in keypoints or id2 not in keypoints or len(matches) == 0:
+                continue
+            e1, e2 = entries[index_of[id1]], entries[index_of[id2]]
+            F = _fundamental_from_poses(e1, e2)
+            err = _sampson_distance(F, keypoints[id1][matches[:, 0]], keypoints[id2][matches[:, 1]])
+            inliers = np.ascontiguousarray(matches[err < p["max_epipolar_error"]], dtype=np.uint32)
+            if len(inliers) == 0:
+                continue
+            geometry = pycolmap.TwoViewGeometry()
+            geometry.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
+            geometry.F = F
+            geometry.inlier_matches = inliers
+            db.write_two_view_geometry(id1, id2, geometry)
+            verified += len(inliers)
+
+    empty = {"points": np.zeros((0, 3)), "colors": np.zeros((0, 3)), "errors": np.zeros(0), "tracks": [],
+             "num_features": num_features, "num_verified_matches": verified}
+    if sum(n > 0 for n in num_features) < 2:
+        return {**empty, "reason": f"fewer than 2 views have features (features per view: {num_features}); "
+                                   "the images are blank or untextured"}
+    if verified == 0:
+        return {**empty, "reason": "no feature match agrees with the known camera poses; the views overlap "
+                                   "too little (or the poses do not belong to these images)"}
+
+    emit("triangulation", f"triangulating {verified} verified matches")
+    options = pycolmap.IncrementalPipelineOptions()
+    options.triangulation.ignore_two_view_tracks = False  # few views: most tracks have two
+    options.triangulation.min_angle = p["min_triangulation_angle"]
+    options.mapper.filter_min_tri_angle = p["min_triangulation_angle"]
+    options.mapper.filter_max_reproj_error = p["max_reprojection_error"]
+    options.triangulation.random_seed = 0
+    sparse = work / "sparse" / "0"
+    sparse.mkdir(parents=True, exist_ok=True)
+    rec = pycolmap.triangulate_points(reconstruction, db_path, image_dir, sparse, clear_points=True,
+                                      options=options, refine_intrinsics=False)
+    points, colors, errors, tracks = [], [], [], []
+    for pid in rec.point3D_ids():
+        pt = rec.point3D(pid)
+        if pt.error > p["max_reprojection_error"] or pt.track.length() < 2:
+            continue
+        points.append(pt.xyz)
+        colors.append(np.asarray(pt.color, dtype=np.float64) / 255.0)
+        errors.append(pt.error)
+        obs = []
+        for el in pt.track.elements:
+            xy = rec.image(el.image_id).points2D[el.point2D_idx].xy
+            obs.append((index_of[el.image_id], xy[0], xy[1]))
+        tracks.append(np.array(obs, dtype=np.float64))
+    reason = "" if points else ("the verified matches did not triangulate within the angle and "
+                                "reprojection limits; the views are too close together or too far apart")
+    return {"points": np.array(points, dtype=np.float64).reshape(-1, 3),
+            "colors": np.array(colors, dtype=np.float64).reshape(-1, 3), "errors": np.array(errors),
+            "tracks": tracks, "num_features": num_features, "num_verified_matches": verified, "reason": reason}
+
+
+def _fundamental_from_poses(e1: dict, e2: dict) -> np.ndarray:
+    """F with x2^T F x1 = 0 for pixel coordinates of the same point in views 1 and 2."""
+    R1, t1 = np.asarray(e1["R"]), np.asarray(e1["t"])
+    R2, t2 = np.asarray(e2["R"]), np.asarray(e2["t"])
+    R = R2 @ R1.T
+    t = t2 - R @ t1
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    K1 = np.array([[e1["fx"], 0.0, e1["cx"]], [0.0, e1["fy"], e1["cy"]], [0.0, 0.0, 1.0]])
+    K2 = np.array([[e2["fx"], 0.0, e2["cx"]], [0.0, e2["fy"], e2["cy"]], [0.0, 0.0, 1.0]])
+    F = np.linalg.inv(K2).T @ tx @ R @ np.linalg.inv(K1)
+    return F / np.linalg.norm(F)
+
+
+def _sampson_distance(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """First-order geometric distance (px) of correspondences to the epipolar geometry F."""
+    h1 = np.concatenate([x1, np.ones((len(x1), 1))], axis=1)
+    h2 = np.concatenate([x2, np.ones((len(x2), 1))], axis=1)
+    Fx1 = h1 @ F.T
+    Ftx2 = h2 @ F
+    num = np.sum(h2 * Fx1, axis=1) ** 2
+    den = Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-300))
+
+
+_TASKS = {"sfm": _child_sfm, "triangulate": _child_triangulate}
