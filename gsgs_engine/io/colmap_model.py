@@ -40,7 +40,7 @@ def _read(model: Path):
 def read_points(model: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Sparse points (N, 3) float32 and colours (N, 3) in [0, 1] of a COLMAP model folder."""
     rec = _read(Path(model))
-    pts = list(rec.points3D.values())
+    pts = [p for _, p in sorted(rec.points3D.items(), key=lambda kv: kv[0])]  # by id: deterministic order
     if not pts:
         return None, None
     xyz = np.array([p.xyz for p in pts], dtype=np.float32)
