@@ -1,0 +1,652 @@
+// gsgs compiled CPU rasteriser: 3DGS tile rasterisation (forward and hand-written backward).
+//
+// Semantics are those of gsgs_engine/render/reference.py (see DESIGN / the module docstring of
+// cpu_backend.py): 16x16 tiles, a Gaussian contributes only to the tiles its radius touches, per-pixel
+// front-to-back compositing in (depth, index) order with alpha = min(0.99, o * exp(power)), skips for
+// power > 0 and alpha < 1/255, and the stop rule T * (1 - alpha) < 1e-4 (that Gaussian not added).
+//
+// Layout of the work:
+//   * visible Gaussians are sorted once by (depth, index) with a stable radix sort; tile lists then hold
+//     sorted ranks, so binning in rank order yields depth-sorted tile lists without a per-tile sort;
+//   * each tile is rendered Gaussian-major: for every Gaussian, the 16-wide pixel rows it can reach are
+//     updated with branch-free, auto-vectorised lane loops (a polynomial exp keeps them vectorisable);
+//   * the backward pass walks each tile's list back to front, reconstructing T per pixel as 3DGS's CUDA
+//     backward does, and writes one gradient record per (tile, Gaussian) entry; records are then summed
+//     per Gaussian in a fixed order, so results are deterministic for any thread count.
+// Threads come from ATen's pool (at::parallel_for, torch.get_num_threads()), tiles are handed out
+// dynamically, largest first.
+
+#include <ATen/ATen.h>
+#include <ATen/Parallel.h>
+#include <torch/library.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <tuple>
+#include <vector>
+
+namespace {
+
+constexpr int kTile = 16;
+constexpr int kTilePixels = kTile * kTile;
+constexpr float kMinAlpha = 1.0f / 255.0f;
+constexpr float kMaxAlpha = 0.99f;
+constexpr float kMinTransmittance = 1e-4f;
+constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
+
+// Hot loops get an AVX2 clone next to the portable one (runtime dispatch through an ifunc), so a
+// cached build stays valid on any x86-64 machine: no -march=native.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define GSGS_HOT __attribute__((target_clones("avx2", "default")))
+#else
+#define GSGS_HOT
+#endif
+#define GSGS_INLINE inline __attribute__((always_inline))
+
+// One visible Gaussian, in depth order, everything the tile loops read (one 48-byte record).
+struct Splat {
+  float mx, my;     // means2d (pixel coordinates)
+  float A, B, C;    // conic (inverse 2D covariance)
+  float opacity;
+  float r, g, b;
+  float depth;
+  float ext_x, ext_y;  // half-extent of the region where alpha >= 1/255 (+margin); < 0: never
+};
+
+GSGS_INLINE float bits_to_float(int32_t v) {
+  float f;
+  std::memcpy(&f, &v, sizeof f);
+  return f;
+}
+
+// exp(x) for the alpha test, x clamped to [-87, 0] (NaN -> -87): Cephes' expf polynomial with
+// round-to-nearest range reduction, ~1 ulp, exp(0) == 1 exactly. Written so GCC vectorises it
+// without -ffast-math (libm's expf would keep the lane loops scalar).
+GSGS_INLINE float exp_nonpositive(float x) {
+  x = (x >= -87.0f) ? x : -87.0f;
+  x = (x < 0.0f) ? x : 0.0f;
+  const float t = x * 1.44269504088896341f;
+  const float n = (t + 12582912.0f) - 12582912.0f;  // round(t): 1.5 * 2^23 shifts out the fraction
+  float r = x - n * 0.693359375f;
+  r = r - n * -2.12194440e-4f;
+  float p = 1.9875691500e-4f;
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  const float y = p * r * r + r + 1.0f;
+  const int32_t e = static_cast<int32_t>(n) + 127;  // n in [-126, 0]: a normal power of two
+  return y * bits_to_float(e << 23);
+}
+
+// Row (or column) index range [lo, hi] inside a tile starting at pixel `start` whose centres lie
+// within `ext` of `centre`; lo > hi when none does. Pixel centres are at start + i + 0.5.
+GSGS_INLINE void lane_range(float centre, float ext, int start, int count, int* lo, int* hi) {
+  const float a = centre - ext - 0.5f - static_cast<float>(start);
+  const float b = centre + ext - 0.5f - static_cast<float>(start);
+  // Compare in float before converting: ext may be +inf.
+  *lo = !(a > 0.0f) ? 0 : (a >= static_cast<float>(count) ? count : static_cast<int>(std::ceil(a)));
+  *hi = !(b < static_cast<float>(count - 1)) ? count - 1 : (b < 0.0f ? -1 : static_cast<int>(std::floor(b)));
+}
+
+// Half-extents of the ellipse o * exp(-q/2) >= 1/255, q = d^T conic d, i.e. q <= 2 ln(255 o); its
+// x half-width is sqrt(k * Sigma_xx) with Sigma = conic^-1. Pixels outside cannot pass the alpha
+// test, so restricting the loops to it changes no result; the margin covers float rounding.
+void alpha_extent(float A, float B, float C, float opacity, float* ext_x, float* ext_y) {
+  // alpha = min(0.99, o * G) with G <= 1, so o < 1/255 can never pass (also rejects NaN).
+  if (!(opacity >= kMinAlpha)) {
+    *ext_x = *ext_y = -1.0f;
+    return;
+  }
+  const double a = A, b = B, c = C;
+  const double det = a * c - b * b;
+  if (!(a > 0.0 && c > 0.0 && det > 0.0 && std::isfinite(det))) {
+    // Not positive definite: no bound, evaluate the whole tile like the reference does.
+    *ext_x = *ext_y = std::numeric_limits<float>::infinity();
+    return;
+  }
+  const double k = std::max(0.0, 2.0 * std::log(255.0 * static_cast<double>(opacity)));
+  *ext_x = static_cast<float>(std::sqrt(k * c / det) * 1.001 + 1.0);
+  *ext_y = static_cast<float>(std::sqrt(k * a / det) * 1.001 + 1.0);
+}
+
+// Depth -> unsigned key with the same order as the float (negative values flipped); -0 == +0.
+GSGS_INLINE uint32_t depth_key(float d) {
+  if (d == 0.0f) d = 0.0f;
+  uint32_t u;
+  std::memcpy(&u, &d, sizeof u);
+  return (u & 0x80000000u) ? ~u : (u | 0x80000000u);
+}
+
+// Stable LSD radix sort of `ids` by `keys` (both permuted together); passes whose byte is constant
+// are skipped.
+void radix_sort_by_key(std::vector<uint32_t>& keys, std::vector<int32_t>& ids) {
+  const size_t n = keys.size();
+  std::vector<uint32_t> keys_tmp(n);
+  std::vector<int32_t> ids_tmp(n);
+  for (int shift = 0; shift < 32; shift += 8) {
+    size_t count[257] = {0};
+    for (size_t i = 0; i < n; ++i) ++count[((keys[i] >> shift) & 0xFFu) + 1];
+    bool constant = false;
+    for (int bucket = 1; bucket <= 256; ++bucket) {
+      if (count[bucket] == n) constant = true;
+    }
+    if (constant) continue;
+    for (int bucket = 0; bucket < 256; ++bucket) count[bucket + 1] += count[bucket];
+    for (size_t i = 0; i < n; ++i) {
+      const size_t dst = count[(keys[i] >> shift) & 0xFFu]++;
+      keys_tmp[dst] = keys[i];
+      ids_tmp[dst] = ids[i];
+    }
+    keys.swap(keys_tmp);
+    ids.swap(ids_tmp);
+  }
+}
+
+struct TileRect {
+  int x0, x1, y0, y1;  // inclusive tile index range
+};
+
+// Tiles touched by a Gaussian: [floor((m - r) / 16), floor((m + r) / 16)] clipped to the grid.
+GSGS_INLINE bool tile_rect(float mx, float my, int radius, int tiles_x, int tiles_y, TileRect* rect) {
+  if (radius <= 0 || !std::isfinite(mx) || !std::isfinite(my)) return false;
+  const float r = static_cast<float>(radius);
+  const float x0 = std::max(std::floor((mx - r) / static_cast<float>(kTile)), 0.0f);
+  const float x1 = std::min(std::floor((mx + r) / static_cast<float>(kTile)), static_cast<float>(tiles_x - 1));
+  const float y0 = std::max(std::floor((my - r) / static_cast<float>(kTile)), 0.0f);
+  const float y1 = std::min(std::floor((my + r) / static_cast<float>(kTile)), static_cast<float>(tiles_y - 1));
+  if (!(x0 <= x1 && y0 <= y1)) return false;
+  rect->x0 = static_cast<int>(x0);
+  rect->x1 = static_cast<int>(x1);
+  rect->y0 = static_cast<int>(y0);
+  rect->y1 = static_cast<int>(y1);
+  return true;
+}
+
+// Runs fn(tile) for every tile of `order` on ATen's threads, handing tiles out one at a time.
+template <typename Fn>
+void for_each_tile(const std::vector<int32_t>& order, Fn&& fn) {
+  std::atomic<int64_t> next{0};
+  const int64_t n = static_cast<int64_t>(order.size());
+  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n));
+  at::parallel_for(0, workers, 1, [&](int64_t, int64_t) {
+    for (int64_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) fn(order[i]);
+  });
+}
+
+// ---------------------------------------------------------------------------------------------
+// Forward of one tile. Per-pixel state lives in lane arrays; each Gaussian updates the rows its
+// alpha ellipse reaches, 16 lanes at a time, branch-free.
+GSGS_HOT void forward_tile(const Splat* splats, const int32_t* ranks, int count, int px0, int py0,
+                           int width, int height, const float* background, float* out_color,
+                           float* out_depth, float* out_alpha, float* out_T, int32_t* out_last) {
+  alignas(64) float T[kTilePixels], cr[kTilePixels], cg[kTilePixels], cb[kTilePixels], dep[kTilePixels];
+  alignas(64) float active[kTilePixels];
+  alignas(64) int32_t last[kTilePixels];
+  const int rows = std::min(kTile, height - py0);
+  const int cols = std::min(kTile, width - px0);
+  int remaining = rows * cols;
+  for (int p = 0; p < kTilePixels; ++p) {
+    const int y = p / kTile, x = p % kTile;
+    T[p] = 1.0f;
+    cr[p] = cg[p] = cb[p] = dep[p] = 0.0f;
+    active[p] = (y < rows && x < cols) ? 1.0f : 0.0f;
+    last[p] = 0;
+  }
+  alignas(64) float px[kTile];
+  for (int x = 0; x < kTile; ++x) px[x] = static_cast<float>(px0 + x) + 0.5f;
+
+  for (int j = 0; j < count && remaining > 0; ++j) {
+    const Splat s = splats[ranks[j]];
+    if (s.ext_x < 0.0f) continue;
+    int c_lo, c_hi, r_lo, r_hi;
+    lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
+    if (c_lo > c_hi) continue;
+    lane_range(s.my, s.ext_y, py0, rows, &r_lo, &r_hi);
+    int stopped = 0;
+    for (int row = r_lo; row <= r_hi; ++row) {
+      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      const int base = row * kTile;
+      for (int x = 0; x < kTile; ++x) {
+        const int p = base + x;
+        const float dx = s.mx - px[x];
+        const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
+        const float alpha = std::min(kMaxAlpha, s.opacity * exp_nonpositive(power));
+        const bool valid = active[p] != 0.0f && power <= 0.0f && alpha >= kMinAlpha;
+        const float test_T = T[p] * (1.0f - alpha);
+        const bool stop = valid && test_T < kMinTransmittance;
+        const bool add = valid && !stop;
+        const float w = add ? alpha * T[p] : 0.0f;
+        cr[p] += s.r * w;
+        cg[p] += s.g * w;
+        cb[p] += s.b * w;
+        dep[p] += s.depth * w;
+        T[p] = add ? test_T : T[p];
+        last[p] = add ? j + 1 : last[p];
+        active[p] = stop ? 0.0f : active[p];
+        stopped += stop ? 1 : 0;
+      }
+    }
+    remaining -= stopped;
+  }
+
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      const int p = y * kTile + x;
+      const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
+      out_color[o * 3 + 0] = cr[p] + T[p] * background[0];
+      out_color[o * 3 + 1] = cg[p] + T[p] * background[1];
+      out_color[o * 3 + 2] = cb[p] + T[p] * background[2];
+      out_depth[o] = dep[p];
+      out_alpha[o] = 1.0f - T[p];
+      out_T[o] = T[p];
+      out_last[o] = last[p];
+    }
+  }
+}
+
+// Backward of one tile: back to front over the tile list, T reconstructed per pixel from the final
+// transmittance; one gradient record (kGradFields floats) per list entry, written to its slot.
+//   C = sum_i c_i a_i T_i + T_N bg,  D = sum_i z_i a_i T_i,  A_out = 1 - T_N
+//   dC/da_i = T_i (c_i - S_i) - T_N bg / (1 - a_i), S_i = colour behind i (S_{i-1} = a_i c_i + (1-a_i) S_i)
+//   dA_out/da_i = T_N / (1 - a_i)
+GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int32_t* slots, int count,
+                            int px0, int py0, int width, int height, const float* background,
+                            const float* final_T, const int32_t* last_in, const float* grad_color,
+                            const float* grad_depth, const float* grad_alpha, float* entry_grad) {
+  alignas(64) float T[kTilePixels], Sr[kTilePixels], Sg[kTilePixels], Sb[kTilePixels], Sz[kTilePixels];
+  alignas(64) float gr[kTilePixels], gg[kTilePixels], gb[kTilePixels], gz[kTilePixels], K[kTilePixels];
+  alignas(64) int32_t last[kTilePixels];
+  const int rows = std::min(kTile, height - py0);
+  const int cols = std::min(kTile, width - px0);
+  int max_last = 0;
+  for (int p = 0; p < kTilePixels; ++p) {
+    T[p] = 1.0f;
+    Sr[p] = Sg[p] = Sb[p] = Sz[p] = 0.0f;
+    gr[p] = gg[p] = gb[p] = gz[p] = K[p] = 0.0f;
+    last[p] = 0;  // pixels outside the image never take part
+  }
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      const int p = y * kTile + x;
+      const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
+      T[p] = final_T[o];
+      last[p] = last_in[o];
+      gr[p] = grad_color[o * 3 + 0];
+      gg[p] = grad_color[o * 3 + 1];
+      gb[p] = grad_color[o * 3 + 2];
+      gz[p] = grad_depth[o];
+      const float bg_dot = gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2];
+      K[p] = T[p] * (grad_alpha[o] - bg_dot);
+      max_last = std::max(max_last, last[p]);
+    }
+  }
+  alignas(64) float px[kTile];
+  for (int x = 0; x < kTile; ++x) px[x] = static_cast<float>(px0 + x) + 0.5f;
+
+  for (int j = count - 1; j >= 0; --j) {
+    float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
+    const Splat s = splats[ranks[j]];
+    int c_lo = 0, c_hi = -1, r_lo = 0, r_hi = -1;
+    if (j < max_last && s.ext_x >= 0.0f) {
+      lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
+      if (c_lo <= c_hi) lane_range(s.my, s.ext_y, py0, rows, &r_lo, &r_hi);
+    }
+    if (r_lo > r_hi) {
+      for (int f = 0; f < kGradFields; ++f) record[f] = 0.0f;
+      continue;
+    }
+    alignas(64) float acc[kGradFields][kTile];
+    for (int f = 0; f < kGradFields; ++f)
+      for (int x = 0; x < kTile; ++x) acc[f][x] = 0.0f;
+    for (int row = r_lo; row <= r_hi; ++row) {
+      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      const int base = row * kTile;
+      for (int x = 0; x < kTile; ++x) {
+        const int p = base + x;
+        const float dx = s.mx - px[x];
+        const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
+        const float G = exp_nonpositive(power);
+        const float oG = s.opacity * G;
+        const float alpha = std::min(kMaxAlpha, oG);
+        const bool valid = j < last[p] && power <= 0.0f && alpha >= kMinAlpha;
+        const float one_minus = 1.0f - alpha;
+        const float T_before = T[p] / one_minus;
+        const float w = alpha * T_before;
+        const float dL_dalpha = T_before * (gr[p] * (s.r - Sr[p]) + gg[p] * (s.g - Sg[p]) +
+                                            gb[p] * (s.b - Sb[p]) + gz[p] * (s.depth - Sz[p])) +
+                                K[p] / one_minus;
+        // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
+        const float dL_doG = (valid && oG <= kMaxAlpha) ? dL_dalpha : 0.0f;
+        const float dL_dpower = dL_doG * oG;
+        const float wv = valid ? w : 0.0f;
+        acc[0][x] += dL_dpower * -(s.A * dx + s.B * dy);
+        acc[1][x] += dL_dpower * -(s.B * dx + s.C * dy);
+        acc[2][x] += dL_dpower * (-0.5f * dx * dx);
+        acc[3][x] += dL_dpower * (-dx * dy);
+        acc[4][x] += dL_dpower * (-0.5f * dy * dy);
+        acc[5][x] += gr[p] * wv;
+        acc[6][x] += gg[p] * wv;
+        acc[7][x] += gb[p] * wv;
+        acc[8][x] += dL_doG * G;
+        acc[9][x] += gz[p] * wv;
+        Sr[p] = valid ? alpha * s.r + one_minus * Sr[p] : Sr[p];
+        Sg[p] = valid ? alpha * s.g + one_minus * Sg[p] : Sg[p];
+        Sb[p] = valid ? alpha * s.b + one_minus * Sb[p] : Sb[p];
+        Sz[p] = valid ? alpha * s.depth + one_minus * Sz[p] : Sz[p];
+        T[p] = valid ? T_before : T[p];
+      }
+    }
+    for (int f = 0; f < kGradFields; ++f) {
+      float sum = 0.0f;
+      for (int x = 0; x < kTile; ++x) sum += acc[f][x];
+      record[f] = sum;
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Visible Gaussians in (depth, index) order and their per-tile lists.
+struct Binning {
+  std::vector<int32_t> order;        // rank -> Gaussian index
+  std::vector<Splat> splats;         // by rank
+  std::vector<int32_t> slot_offset;  // rank -> first gradient slot (size n_vis + 1)
+  at::Tensor tile_offsets;           // int32 [n_tiles + 1]
+  at::Tensor tile_ranks;             // int32 [n_entries], depth-sorted per tile
+  at::Tensor entry_slots;            // int32 [n_entries], gradient record of each entry
+};
+
+void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
+                  const at::Tensor& opacities, const at::Tensor& depths, const at::Tensor& radii,
+                  int64_t width, int64_t height, const at::Tensor& background) {
+  const int64_t n = means2d.size(0);
+  auto check = [&](const at::Tensor& t, const char* name, at::ScalarType dtype, std::vector<int64_t> shape) {
+    TORCH_CHECK(t.device().is_cpu(), "rasterize_cpu: ", name, " must be a CPU tensor");
+    TORCH_CHECK(t.scalar_type() == dtype, "rasterize_cpu: ", name, " must be ", dtype, ", got ", t.scalar_type());
+    TORCH_CHECK(t.is_contiguous(), "rasterize_cpu: ", name, " must be contiguous");
+    TORCH_CHECK(t.sizes() == at::IntArrayRef(shape), "rasterize_cpu: ", name, " must have shape ", at::IntArrayRef(shape),
+                ", got ", t.sizes());
+  };
+  TORCH_CHECK(means2d.dim() == 2, "rasterize_cpu: means2d must be [N, 2]");
+  check(means2d, "means2d", at::kFloat, {n, 2});
+  check(conics, "conics", at::kFloat, {n, 3});
+  check(colors, "colors", at::kFloat, {n, 3});
+  check(opacities, "opacities", at::kFloat, {n});
+  check(depths, "depths", at::kFloat, {n});
+  check(radii, "radii", at::kInt, {n});
+  check(background, "background", at::kFloat, {3});
+  TORCH_CHECK(width > 0 && height > 0 && width <= (1 << 20) && height <= (1 << 20),
+              "rasterize_cpu: image size must be positive, got ", width, "x", height);
+  TORCH_CHECK(n < std::numeric_limits<int32_t>::max(), "rasterize_cpu: too many Gaussians");
+}
+
+Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
+                      const at::Tensor& opacities, const at::Tensor& depths, const at::Tensor& radii,
+                      int tiles_x, int tiles_y) {
+  const int64_t n = means2d.size(0);
+  const float* m = means2d.data_ptr<float>();
+  const float* cn = conics.data_ptr<float>();
+  const float* col = colors.data_ptr<float>();
+  const float* op = opacities.data_ptr<float>();
+  const float* dp = depths.data_ptr<float>();
+  const int32_t* rad = radii.data_ptr<int32_t>();
+  const int n_tiles = tiles_x * tiles_y;
+
+  Binning b;
+  std::vector<uint32_t> keys;
+  std::vector<int32_t> ids;
+  keys.reserve(n);
+  ids.reserve(n);
+  for (int64_t g = 0; g < n; ++g) {
+    TileRect rect;
+    if (tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect)) {
+      keys.push_back(depth_key(dp[g]));
+      ids.push_back(static_cast<int32_t>(g));
+    }
+  }
+  radix_sort_by_key(keys, ids);
+  b.order = std::move(ids);
+  const int64_t n_vis = static_cast<int64_t>(b.order.size());
+
+  b.splats.resize(n_vis);
+  std::vector<TileRect> rects(n_vis);
+  b.slot_offset.assign(n_vis + 1, 0);
+  int64_t total = 0;
+  for (int64_t s = 0; s < n_vis; ++s) {
+    const int64_t g = b.order[s];
+    Splat& sp = b.splats[s];
+    sp.mx = m[2 * g];
+    sp.my = m[2 * g + 1];
+    sp.A = cn[3 * g];
+    sp.B = cn[3 * g + 1];
+    sp.C = cn[3 * g + 2];
+    sp.opacity = op[g];
+    sp.r = col[3 * g];
+    sp.g = col[3 * g + 1];
+    sp.b = col[3 * g + 2];
+    sp.depth = dp[g];
+    alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
+    tile_rect(sp.mx, sp.my, rad[g], tiles_x, tiles_y, &rects[s]);
+    b.slot_offset[s] = static_cast<int32_t>(total);
+    total += static_cast<int64_t>(rects[s].x1 - rects[s].x0 + 1) * (rects[s].y1 - rects[s].y0 + 1);
+    TORCH_CHECK(total < std::numeric_limits<int32_t>::max(),
+                "rasterize_cpu: more than 2^31 Gaussian-tile pairs; render at a lower resolution");
+  }
+  b.slot_offset[n_vis] = static_cast<int32_t>(total);
+
+  // Per-chunk tile counts, then offsets chunk after chunk inside each tile: lists stay in rank order.
+  const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_vis / 4096 + 1));
+  const int64_t chunk_len = (n_vis + chunks - 1) / chunks;
+  std::vector<int32_t> counts(static_cast<size_t>(chunks) * n_tiles, 0);
+  at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
+    for (int64_t c = c0; c < c1; ++c) {
+      int32_t* cnt = counts.data() + c * n_tiles;
+      for (int64_t s = c * chunk_len; s < std::min(n_vis, (c + 1) * chunk_len); ++s) {
+        const TileRect& r = rects[s];
+        for (int ty = r.y0; ty <= r.y1; ++ty)
+          for (int tx = r.x0; tx <= r.x1; ++tx) ++cnt[ty * tiles_x + tx];
+      }
+    }
+  });
+  b.tile_offsets = at::empty({n_tiles + 1}, at::kInt);
+  int32_t* offsets = b.tile_offsets.data_ptr<int32_t>();
+  int32_t running = 0;
+  for (int t = 0; t < n_tiles; ++t) {
+    offsets[t] = running;
+    for (int64_t c = 0; c < chunks; ++c) {
+      const int32_t k = counts[c * n_tiles + t];
+      counts[c * n_tiles + t] = running;  // becomes this chunk's cursor in tile t
+      running += k;
+    }
+  }
+  offsets[n_tiles] = running;
+  b.tile_ranks = at::empty({static_cast<int64_t>(running)}, at::kInt);
+  b.entry_slots = at::empty({static_cast<int64_t>(running)}, at::kInt);
+  int32_t* tile_ranks = b.tile_ranks.data_ptr<int32_t>();
+  int32_t* entry_slots = b.entry_slots.data_ptr<int32_t>();
+  at::parallel_for(0, chunks, 1, [&](int64_t c0, int64_t c1) {
+    for (int64_t c = c0; c < c1; ++c) {
+      int32_t* cursor = counts.data() + c * n_tiles;
+      for (int64_t s = c * chunk_len; s < std::min(n_vis, (c + 1) * chunk_len); ++s) {
+        const TileRect& r = rects[s];
+        int32_t slot = b.slot_offset[s];
+        for (int ty = r.y0; ty <= r.y1; ++ty) {
+          for (int tx = r.x0; tx <= r.x1; ++tx) {
+            const int32_t e = cursor[ty * tiles_x + tx]++;
+            tile_ranks[e] = static_cast<int32_t>(s);
+            entry_slots[e] = slot++;
+          }
+        }
+      }
+    }
+  });
+  return b;
+}
+
+// Tiles, most entries first, so the long ones do not finish last on one thread.
+std::vector<int32_t> tile_schedule(const int32_t* offsets, int n_tiles) {
+  std::vector<int32_t> order(n_tiles);
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](int32_t a, int32_t b) {
+    return offsets[a + 1] - offsets[a] > offsets[b + 1] - offsets[b];
+  });
+  return order;
+}
+
+using ForwardResult = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor,
+                                 at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
+
+// -> color [H,W,3], depth [H,W], alpha [H,W], and for the backward: final T [H,W], last contributor
+// [H,W] (1-based position in the tile list), tile offsets, tile lists (ranks), entry slots, rank ->
+// Gaussian order, rank -> first slot.
+ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
+                                const at::Tensor& opacities, const at::Tensor& depths, const at::Tensor& radii,
+                                int64_t width, int64_t height, const at::Tensor& background) {
+  check_inputs(means2d, conics, colors, opacities, depths, radii, width, height, background);
+  const int W = static_cast<int>(width), H = static_cast<int>(height);
+  const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
+  Binning b = bin_gaussians(means2d, conics, colors, opacities, depths, radii, tiles_x, tiles_y);
+
+  at::Tensor color = at::empty({H, W, 3}, at::kFloat);
+  at::Tensor depth = at::empty({H, W}, at::kFloat);
+  at::Tensor alpha = at::empty({H, W}, at::kFloat);
+  at::Tensor final_T = at::empty({H, W}, at::kFloat);
+  at::Tensor last = at::empty({H, W}, at::kInt);
+  const int32_t* offsets = b.tile_offsets.data_ptr<int32_t>();
+  const int32_t* ranks = b.tile_ranks.data_ptr<int32_t>();
+  const float* bg = background.data_ptr<float>();
+  float* color_p = color.data_ptr<float>();
+  float* depth_p = depth.data_ptr<float>();
+  float* alpha_p = alpha.data_ptr<float>();
+  float* T_p = final_T.data_ptr<float>();
+  int32_t* last_p = last.data_ptr<int32_t>();
+  for_each_tile(tile_schedule(offsets, tiles_x * tiles_y), [&](int32_t t) {
+    const int tx = t % tiles_x, ty = t / tiles_x;
+    forward_tile(b.splats.data(), ranks + offsets[t], offsets[t + 1] - offsets[t], tx * kTile, ty * kTile, W, H,
+                 bg, color_p, depth_p, alpha_p, T_p, last_p);
+  });
+
+  const int64_t n_vis = static_cast<int64_t>(b.order.size());
+  at::Tensor order = at::empty({n_vis}, at::kInt);
+  at::Tensor slot_offset = at::empty({n_vis + 1}, at::kInt);
+  if (n_vis > 0) std::memcpy(order.data_ptr<int32_t>(), b.order.data(), n_vis * sizeof(int32_t));
+  std::memcpy(slot_offset.data_ptr<int32_t>(), b.slot_offset.data(), (n_vis + 1) * sizeof(int32_t));
+  return {color, depth, alpha, final_T, last, b.tile_offsets, b.tile_ranks, b.entry_slots, order, slot_offset};
+}
+
+// -> grad means2d [N,2], conics [N,3], colors [N,3], opacities [N], depths [N].
+std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize_backward(
+    const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors, const at::Tensor& opacities,
+    const at::Tensor& depths, const at::Tensor& radii, int64_t width, int64_t height, const at::Tensor& background,
+    const at::Tensor& final_T, const at::Tensor& last, const at::Tensor& tile_offsets, const at::Tensor& tile_ranks,
+    const at::Tensor& entry_slots, const at::Tensor& order, const at::Tensor& slot_offset,
+    const at::Tensor& grad_color, const at::Tensor& grad_depth, const at::Tensor& grad_alpha) {
+  check_inputs(means2d, conics, colors, opacities, depths, radii, width, height, background);
+  const int W = static_cast<int>(width), H = static_cast<int>(height);
+  const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
+  const int n_tiles = tiles_x * tiles_y;
+  const int64_t n = means2d.size(0);
+  const int64_t n_vis = order.size(0);
+  for (const at::Tensor* t : {&final_T, &grad_depth, &grad_alpha}) {
+    TORCH_CHECK(t->scalar_type() == at::kFloat && t->is_contiguous() && t->sizes() == at::IntArrayRef({H, W}),
+                "rasterize_cpu backward: per-pixel tensors must be contiguous float32 [H, W]");
+  }
+  TORCH_CHECK(grad_color.scalar_type() == at::kFloat && grad_color.is_contiguous() &&
+                  grad_color.sizes() == at::IntArrayRef({H, W, 3}),
+              "rasterize_cpu backward: grad_color must be contiguous float32 [H, W, 3]");
+  TORCH_CHECK(last.scalar_type() == at::kInt && last.is_contiguous() && last.numel() == int64_t(H) * W,
+              "rasterize_cpu backward: bad saved state");
+  TORCH_CHECK(tile_offsets.numel() == n_tiles + 1 && slot_offset.numel() == n_vis + 1,
+              "rasterize_cpu backward: saved state does not match the image size");
+
+  // Packed records again (cheaper to rebuild than to keep alive between the passes).
+  const float* m = means2d.data_ptr<float>();
+  const float* cn = conics.data_ptr<float>();
+  const float* col = colors.data_ptr<float>();
+  const float* op = opacities.data_ptr<float>();
+  const float* dp = depths.data_ptr<float>();
+  const int32_t* ord = order.data_ptr<int32_t>();
+  std::vector<Splat> splats(n_vis);
+  at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      const int64_t g = ord[s];
+      Splat& sp = splats[s];
+      sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
+                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f};
+      alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
+    }
+  });
+
+  const int32_t* offsets = tile_offsets.data_ptr<int32_t>();
+  const int32_t* ranks = tile_ranks.data_ptr<int32_t>();
+  const int32_t* slots = entry_slots.data_ptr<int32_t>();
+  const int64_t n_entries = tile_ranks.numel();
+  std::vector<float> entry_grad(static_cast<size_t>(n_entries) * kGradFields);
+  const float* bg = background.data_ptr<float>();
+  const float* T_p = final_T.data_ptr<float>();
+  const int32_t* last_p = last.data_ptr<int32_t>();
+  const float* gc = grad_color.data_ptr<float>();
+  const float* gd = grad_depth.data_ptr<float>();
+  const float* ga = grad_alpha.data_ptr<float>();
+  for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
+    const int tx = t % tiles_x, ty = t / tiles_x;
+    backward_tile(splats.data(), ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
+                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, entry_grad.data());
+  });
+
+  at::Tensor g_means = at::zeros({n, 2}, at::kFloat);
+  at::Tensor g_conics = at::zeros({n, 3}, at::kFloat);
+  at::Tensor g_colors = at::zeros({n, 3}, at::kFloat);
+  at::Tensor g_opac = at::zeros({n}, at::kFloat);
+  at::Tensor g_depth = at::zeros({n}, at::kFloat);
+  float* gm = g_means.data_ptr<float>();
+  float* gk = g_conics.data_ptr<float>();
+  float* gcol = g_colors.data_ptr<float>();
+  float* go = g_opac.data_ptr<float>();
+  float* gz = g_depth.data_ptr<float>();
+  const int32_t* soff = slot_offset.data_ptr<int32_t>();
+  // Each Gaussian's records are contiguous and summed in tile order: deterministic.
+  at::parallel_for(0, n_vis, 1024, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      float sum[kGradFields] = {0};
+      for (int32_t e = soff[s]; e < soff[s + 1]; ++e) {
+        const float* rec = entry_grad.data() + static_cast<int64_t>(e) * kGradFields;
+        for (int f = 0; f < kGradFields; ++f) sum[f] += rec[f];
+      }
+      const int64_t g = ord[s];
+      gm[2 * g] = sum[0];
+      gm[2 * g + 1] = sum[1];
+      gk[3 * g] = sum[2];
+      gk[3 * g + 1] = sum[3];
+      gk[3 * g + 2] = sum[4];
+      gcol[3 * g] = sum[5];
+      gcol[3 * g + 1] = sum[6];
+      gcol[3 * g + 2] = sum[7];
+      go[g] = sum[8];
+      gz[g] = sum[9];
+    }
+  });
+  return {g_means, g_conics, g_colors, g_opac, g_depth};
+}
+
+}  // namespace
+
+TORCH_LIBRARY(gsgs_raster_cpu, m) {
+  m.def(
+      "forward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
+      "int width, int height, Tensor background) -> (Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, "
+      "Tensor, Tensor, Tensor)",
+      &rasterize_forward);
+  m.def(
+      "backward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
+      "int width, int height, Tensor background, Tensor final_T, Tensor last, Tensor tile_offsets, "
+      "Tensor tile_ranks, Tensor entry_slots, Tensor order, Tensor slot_offset, Tensor grad_color, "
+      "Tensor grad_depth, Tensor grad_alpha) -> (Tensor, Tensor, Tensor, Tensor, Tensor)",
+      &rasterize_backward);
+}
