@@ -317,6 +317,22 @@ def test_tiny_nerf_loads_with_size_from_png_header(tmp_path):
     assert len(scene.train) == 3 and len(scene.test) == 2 and scene.has_alpha
     assert scene.train[0].camera.width == 32 and scene.train[0].image().shape == (24, 32, 3)
     assert not load_scene(tiny_nerf(tmp_path / "rgb", rgba=False)).has_alpha
+    # instant-ngp style: per-file fl_x / w / h describing photos twice the size on disk
+    meta = json.loads((tmp_path / "transforms_train.json").read_text())
+    del meta["camera_angle_x"]
+    meta.update(fl_x=60.0, fl_y=62.0, cx=33.0, cy=24.0, w=64, h=48)
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    cam = load_scene(tmp_path).train[0].camera
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (30.0, 31.0, 16.5, 12.0, 32, 24)
+    meta["k1"] = -0.1  # OPENCV distortion keys: the view is resampled to a pinhole camera
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    view = load_scene(tmp_path).train[0]
+    assert view.loader.undistortion is not None and view.camera.fx < 30.0
+    assert view.image().shape == (24, 32, 3)
+    meta["camera_model"] = "OPENCV_FISHEYE"
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(GsgsError, match="camera_model OPENCV_FISHEYE is not supported"):
+        load_scene(tmp_path)
 
 
 def test_photos_folder_says_run_sfm(tmp_path):

@@ -105,7 +105,11 @@ def image_info(path: Path) -> ImageInfo:
 
 def decode_image(path: Path) -> np.ndarray:
     """Decode to float32 (H, W, C) in [0, 1], C = 3 (RGB) or 4 (RGBA); uint8 / uint16 are scaled."""
-    import cv2
+    try:
+        import cv2
+    except ImportError as exc:  # e.g. inside Blender's Python: cameras load, pixels need the engine
+        raise GsgsError(f"{path}: decoding images needs OpenCV (opencv-python-headless); "
+                        "run this in the gsgs engine's Python, not Blender's") from exc
 
     path = Path(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
