@@ -6,6 +6,10 @@ the top-left pixel at (0.5, 0.5) (COLMAP's and gsplat's convention): a principal
 the middle of a W x H image is (W / 2, H / 2). Every other convention (Blender, NeRF /
 OpenGL, LLFF, COLMAP) converts through the functions in this module. numpy only: the
 Blender add-on imports this file.
+
+Lens distortion (COLMAP SIMPLE_RADIAL / RADIAL / OPENCV / FULL_OPENCV, NeRF k1..p2) is not
+carried into training: such a photo gets a pinhole Camera plus an `Undistortion` (remap tables)
+that the loader applies when it decodes the image. Other models are refused with the fix.
 """
 
 from __future__ import annotations
