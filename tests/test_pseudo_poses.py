@@ -1,0 +1,69 @@
+"""Pseudo poses: interpolation between neighbouring cameras, nearest-view bookkeeping, authored poses."""
+
+import numpy as np
+import pytest
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cameras import Camera, look_at
+from gsgs_engine.priors.poses import (authored_pseudo_views, interpolated_pseudo_views, nearest_train_index,
+                                      neighbour_pairs, rotation_angle_deg)
+
+
+def _ring(n=6, radius=4.0, w=40, h=30):
+    cams = []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        eye = np.array([radius * np.cos(a), radius * np.sin(a), 1.0])
+        R, t = look_at(eye, np.zeros(3))
+        cams.append(Camera(R=R, t=t, fx=30 + k, fy=30 + k, cx=w / 2, cy=h / 2, width=w, height=h, name=f"c{k}"))
+    return cams
+
+
+def test_count_nearest_and_intrinsics():
+    train = _ring()
+    views = interpolated_pseudo_views(train, 10)
+    assert len(views) == 10 and len({v.name for v in views}) == 10
+    for v in views:
+        assert v.nearest_train == nearest_train_index(v.camera, train)
+        ref = train[v.nearest_train]
+        assert (v.camera.fx, v.camera.width, v.camera.height) == (ref.fx, ref.width, ref.height)
+        v.camera.validate()
+
+
+def test_interpolated_poses_lie_between_their_neighbours_and_look_at_the_scene():
+    train = _ring(n=4)
+    for v in interpolated_pseudo_views(train, 8):
+        # Orientation between two ring cameras 90 degrees apart: at most 90 degrees from the nearest.
+        assert rotation_angle_deg(v.camera, train[v.nearest_train]) <= 45.0 + 1e-6
+        uv, z = v.camera.project(np.zeros((1, 3)))
+        assert z[0] > 0 and 0 < uv[0, 0] < v.camera.width and 0 < uv[0, 1] < v.camera.height
+
+
+def test_jitter_is_seeded_and_moves_poses():
+    train = _ring()
+    a = interpolated_pseudo_views(train, 5, jitter=0.1, seed=1)
+    b = interpolated_pseudo_views(train, 5, jitter=0.1, seed=1)
+    c = interpolated_pseudo_views(train, 5, jitter=0.0)
+    assert all(np.allclose(x.camera.t, y.camera.t) for x, y in zip(a, b))
+    assert any(not np.allclose(x.camera.t, y.camera.t) for x, y in zip(a, c))
+
+
+def test_edges_and_degenerate_inputs():
+    train = _ring(n=5)
+    edges = neighbour_pairs(train)
+    assert (0, 1) in edges and (0, 4) in edges and all(i < j for i, j in edges)
+    assert interpolated_pseudo_views(train[:1], 4) == []
+    assert interpolated_pseudo_views(train, 0) == []
+    two = interpolated_pseudo_views(train[:2], 3)
+    assert len(two) == 3
+
+
+def test_authored_poses_keep_nearest_intrinsics_and_reject_bad_entries():
+    train = _ring()
+    R, t = look_at(np.array([4.0, 0.3, 1.2]), np.zeros(3))
+    d = Camera(R=R, t=t, fx=99, fy=99, cx=5, cy=5, width=10, height=10).to_dict()
+    (v,) = authored_pseudo_views([d], train)
+    assert v.source == "authored" and v.nearest_train == 0 and v.camera.width == train[0].width
+    bad = dict(d, t=[float("nan"), 0, 0])
+    with pytest.raises(GsgsError, match="pseudo_poses\\[0\\]"):
+        authored_pseudo_views([bad], train)
