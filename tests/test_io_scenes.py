@@ -131,6 +131,7 @@ def test_lego_train_split_and_train_selection():
     assert len(both.train) == 75 and len(set(both.splits["train"])) == 75
     by_name = load_scene(path, train_ids=["r_55", "train/r_2", "r_26.png"])
     assert [Path(v.image_path).stem for v in by_name.train] == ["r_55", "r_2", "r_26"]
+    assert [Path(v.image_path).stem for v in load_scene(path, train_ids=["1", "3"]).train] == ["r_86", "r_55"]
     by_pos = load_scene(path, train_ids=[0, 7])
     assert [Path(v.image_path).stem for v in by_pos.train] == ["r_26", "r_73"]
     assert len(by_pos.splits["all_train"]) == 8 and len(by_pos.test) == 25

@@ -53,7 +53,8 @@ def load_scene(path, format: str = "auto", train_split: str | None = None, train
 
     train_split: which split (NeRF-synthetic: which transforms file(s), "train+dense" joins) is the
       candidate pool for training; default "train".
-    train_ids: the training views, as positions in that pool (ints) or view names (strings).
+    train_ids: the training views, as positions in that pool (ints) or view names / file stems
+      (strings; a digit string that names no view is a position, as typed on a command line).
     train_views: N views spread evenly over the pool: round(linspace(0, len(pool) - 1, N)) (FSGS/DNGaussian).
     The full pool stays available as split "all_train"; "test" is never changed.
     resolution_scale (default 1.0) resizes images and intrinsics; background (default white) is
@@ -150,6 +151,8 @@ def _resolve_ids(scene: Scene, pool: list[int], train_ids) -> list[int]:
             pos = int(item)
         elif isinstance(item, str) and item in by_name:
             pos = by_name[item]
+        elif isinstance(item, str) and item.strip().isdigit() and int(item) < len(pool):
+            pos = int(item)  # "5" from a command line: a position, unless a view is named "5"
         else:
             raise GsgsError(f"{scene.source}: train id {item!r} names no candidate training view; use positions "
                             f"0..{len(pool) - 1} or view names such as {scene.views[pool[0]].name!r}")
