@@ -1,0 +1,72 @@
+"""The weights-free generator: exact for a surface every photo sees, honest about holes."""
+
+import numpy as np
+import torch
+
+from gsgs_engine.cameras import Camera, look_at
+from gsgs_engine.priors.warp_inpaint import TrainingPhoto, inpaint, surface_depth, warp_inpaint
+
+
+def _cam(eye, w=48, h=40, f=50.0):
+    R, t = look_at(np.asarray(eye, float), np.array([0.0, 0.0, 0.0]), up=(0.0, -1.0, 0.0))
+    return Camera(R=R, t=t, fx=f, fy=f, cx=w / 2, cy=h / 2, width=w, height=h)
+
+
+def _plane_view(cam, texture):
+    """Exact image and depth of the textured plane z = 0 (colour = texture(x, y)) seen by `cam`."""
+    v, u = torch.meshgrid(torch.arange(cam.height, dtype=torch.float64) + 0.5,
+                          torch.arange(cam.width, dtype=torch.float64) + 0.5, indexing="ij")
+    d_cam = torch.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, torch.ones_like(u)], -1)
+    d_world = d_cam @ torch.as_tensor(cam.R)
+    c = torch.as_tensor(cam.center)
+    s = -c[2] / d_world[..., 2]  # ray parameter to z = 0
+    pts = c + s[..., None] * d_world
+    depth = s  # d_cam has unit z, so the ray parameter is the z-depth
+    return texture(pts[..., 0], pts[..., 1]), depth
+
+
+def _texture(x, y):
+    return torch.stack([0.5 + 0.4 * torch.sin(3 * x), 0.5 + 0.4 * torch.cos(2 * y), 0.5 + 0.2 * torch.sin(x + y)], -1)
+
+
+def test_a_plane_seen_by_all_photos_is_reproduced():
+    train = [_cam([0.6, 0.1, -4.0]), _cam([-0.5, -0.2, -4.2])]
+    pseudo = _cam([0.05, 0.0, -4.1])
+    photos = []
+    for cam in train:
+        img, depth = _plane_view(cam, _texture)
+        photos.append(TrainingPhoto(cam, img, depth))
+    truth, depth = _plane_view(pseudo, _texture)
+    alpha = torch.ones_like(depth)
+    blurry_render = torch.full_like(truth, 0.5)
+    image, stats = warp_inpaint(pseudo, blurry_render, depth * alpha, alpha, photos)
+    assert stats["covered"] == 1.0 and stats["warped"] > 0.95
+    err = (image - truth).abs().mean().item()
+    assert err < 0.01, err  # the warped photos, not the blurry render
+    assert (blurry_render - truth).abs().mean().item() > 0.05
+
+
+def test_empty_pixels_keep_the_render_and_disocclusions_are_inpainted():
+    cam = _cam([0.0, 0.0, -4.0], w=32, h=24)
+    img, depth = _plane_view(cam, _texture)
+    photo = TrainingPhoto(cam, img, depth)
+    alpha = torch.ones_like(depth)
+    alpha[:, :4] = 0.0  # the render is empty here: keep the render's background
+    render = torch.ones_like(img)
+    far_photo = TrainingPhoto(cam, img, depth * 3.0)  # disagrees everywhere: occluded, nothing copied
+    image, stats = warp_inpaint(cam, render, depth * alpha, alpha, [photo])
+    assert torch.all(image[:, :4] == 1.0)
+    assert torch.allclose(image[:, 4:], img[:, 4:], atol=1e-6)
+    occluded, ostats = warp_inpaint(cam, render, depth * alpha, alpha, [far_photo])
+    assert ostats["warped"] == 0.0 and ostats["inpainted"] == 1.0
+    assert torch.isfinite(occluded).all()
+
+
+def test_inpaint_fills_only_holes_and_surface_depth_is_safe():
+    img = torch.rand(16, 16, 3)
+    holes = torch.zeros(16, 16, dtype=torch.bool)
+    holes[6:9, 6:9] = True
+    out = inpaint(img, holes)
+    assert torch.equal(out[~holes], img[~holes]) and not torch.equal(out[holes], img[holes])
+    z = surface_depth(torch.tensor([[0.0, 1.0]]), torch.tensor([[0.0, 0.5 + 1e-3]]))
+    assert z[0, 0] == 0 and torch.isfinite(z).all()
