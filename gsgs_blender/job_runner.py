@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Callable
 
 from gsgs_engine import GsgsError
-from gsgs_engine.job import Job, ProgressReader, read_status
+from gsgs_engine.job import STATES, Job, ProgressReader, read_status
 
 CANCEL_GRACE_S = 10.0  # the engine checks cancel.request between steps; then we terminate
 KILL_GRACE_S = 5.0  # after terminate(), kill() if the process still has not exited
@@ -227,17 +227,22 @@ def start(job_dir: str | os.PathLike, python: str, engine_root: str | os.PathLik
 
 
 def attach(job_dir: str | os.PathLike) -> JobRun:
-    """The run for a job folder: the live one, or a read-only view of a folder from an earlier session."""
+    """The run of a job folder: the live one, or one read from the folder (a job started by an
+    earlier session or another machine). A folder whose status is "running" is followed through
+    its files; cancel then works through cancel.request only."""
     key = str(Path(job_dir).resolve())
     run = RUNS.get(key)
     if run is None:
         run = JobRun(job_dir=Path(key))
         status = read_status(key) or {}
-        run.state = status.get("state") if status.get("state") in FINAL_STATES else "unknown" if not status else "detached"
+        run.state = status.get("state") if status.get("state") in STATES else "unknown"
         run.message = status.get("message", "")
+        run.finished_handled = True  # its result was handled (or is imported on request)
         events = run._reader.poll()
         run.last_event = events[-1] if events else None
         RUNS[key] = run
+        if run.state == "running" and ui_available():
+            ensure_timer()
     return run
 
 

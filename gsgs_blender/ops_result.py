@@ -1,0 +1,93 @@
+"""Import splats: a finished training job's result, or any Gaussian-splat PLY."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+from bpy_extras.io_utils import ImportHelper
+
+from gsgs_engine import GsgsError
+from gsgs_engine.job import Job
+
+from . import splat_import
+from .operators import job_run, report_error
+
+RESULT_COLLECTION = "GS-GS Result"
+
+
+def _collection(scene, name: str):
+    coll = bpy.data.collections.get(name) or bpy.data.collections.new(name)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    return coll
+
+
+def import_ply(scene, path: str | Path, replace_result: bool = True):
+    s = scene.gsgs
+    if replace_result and s.result_object is not None:
+        bpy.data.objects.remove(s.result_object, do_unlink=True)
+    obj, seconds = splat_import.import_splats(path, collection=_collection(scene, RESULT_COLLECTION),
+                                              max_display=s.max_display, size=s.splat_size)
+    obj["gsgs_import_seconds"] = round(seconds, 3)
+    s.result_object = obj
+    return obj
+
+
+def import_job_result(scene, job_dir: str | Path):
+    """The splats of a training job, only once its status is ok."""
+    job = Job.open(job_dir)
+    status = job.status() or {}
+    if status.get("state") != "ok":
+        raise GsgsError(f"{job.root}: the job is {status.get('state', 'not finished')}; "
+                        "its result is imported only after it finishes successfully")
+    ply = job.result_dir / "point_cloud.ply"
+    if not ply.is_file():
+        raise GsgsError(f"{ply}: missing although the job finished; run the job again")
+    obj = import_ply(scene, ply)
+    obj["gsgs_job"] = str(job.root)
+    return obj
+
+
+class GSGS_OT_import_result(bpy.types.Operator):
+    bl_idname = "gsgs.import_result"
+    bl_label = "Import Result"
+    bl_description = "Import the finished training job's splats as point instances (replaces the previous result)"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        run = job_run(context.scene.gsgs.train_job)
+        if run is None or run.state != "ok":
+            cls.poll_message_set("No successfully finished training job")
+            return False
+        return True
+
+    def execute(self, context):
+        try:
+            obj = import_job_result(context.scene, bpy.path.abspath(context.scene.gsgs.train_job))
+        except GsgsError as exc:
+            return report_error(self, exc)
+        self.report({"INFO"}, f"{obj['gsgs_count']} splats in {obj['gsgs_import_seconds']} s")
+        return {"FINISHED"}
+
+
+class GSGS_OT_import_splat_ply(bpy.types.Operator, ImportHelper):
+    bl_idname = "gsgs.import_splat_ply"
+    bl_label = "Import Splat PLY"
+    bl_description = "Import any Gaussian-splat PLY (3DGS layout, SH degree 0-3, extra fields kept as attributes)"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filename_ext = ".ply"
+    filter_glob: bpy.props.StringProperty(default="*.ply", options={"HIDDEN"})
+
+    def execute(self, context):
+        try:
+            obj = import_ply(context.scene, self.filepath, replace_result=False)
+        except GsgsError as exc:
+            return report_error(self, exc)
+        self.report({"INFO"}, f"{obj['gsgs_count']} splats in {obj['gsgs_import_seconds']} s")
+        return {"FINISHED"}
+
+
+CLASSES = (GSGS_OT_import_result, GSGS_OT_import_splat_ply)

@@ -1,0 +1,200 @@
+"""Train / validate in the background, cancel and resume: the job folder is the only link."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+
+from gsgs_engine import GsgsError
+from gsgs_engine.job import Job
+
+from . import camera_convert, pseudo_paths
+from .operators import job_run, launch, new_job_dir, report_error, scene_callback
+from .preferences import get_prefs, models_of
+
+JOB_KINDS = [("sfm", "Camera Solve", ""), ("train", "Training", ""), ("validate", "Validation", "")]
+
+
+def training_views(scene) -> list[dict]:
+    """The training cameras as job data: Camera.to_dict() + "image" + "split"."""
+    objs = pseudo_paths.training_camera_objects(scene)
+    if not objs:
+        raise GsgsError("no training cameras; import photos (Solve Cameras) or Use Scene Cameras first")
+    from .ops_photos import photo_of
+
+    views = []
+    for obj in objs:
+        image = photo_of(obj)
+        if not image or not Path(image).is_file():
+            raise GsgsError(f"camera {obj.name!r}: photo {image or '(none)'} not found; set its background image")
+        cam = camera_convert.camera_from_object(obj, scene)
+        size = _image_size(image)
+        if size is not None and size != (cam.width, cam.height):
+            # A scene camera sized by the render settings: scale to the photo when the aspect agrees.
+            w, h = size
+            if abs(w / h - cam.width / cam.height) > 0.01:
+                raise GsgsError(f"camera {obj.name!r}: photo is {w}x{h} but the camera frame is "
+                                f"{cam.width}x{cam.height}; set the render resolution to the photo's")
+            cam = cam.scaled(w / cam.width)
+        views.append({**cam.to_dict(), "image": image, "split": "train"})
+    return views
+
+
+def _image_size(path: str) -> tuple[int, int] | None:
+    img = bpy.data.images.load(path, check_existing=True)
+    w, h = img.size
+    return (int(w), int(h)) if w and h else None
+
+
+def train_spec(context) -> dict:
+    """Job.create keyword arguments of the scene's training job (data, settings, pseudo poses)."""
+    scene = context.scene
+    s = scene.gsgs
+    prefs = get_prefs(context)
+    return {
+        "data": {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]},
+        # Only keys the trainer knows; the generative pipeline's options travel in "pipeline".
+        "settings": {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale)},
+        "pseudo_poses": pseudo_paths.poses_from_json(s.pseudo_poses),
+        "pipeline": {"rounds": int(s.rounds), "generator": s.generator, "device": prefs.device},
+        "models": models_of(prefs),
+        "blender": {"file": bpy.data.filepath, "scene": scene.name},
+    }
+
+
+def _on_train_finished(scene, run) -> None:
+    if run.state == "ok":
+        from .ops_result import import_job_result
+
+        obj = import_job_result(scene, run.job_dir)
+        run.message = f"{run.message} — imported {obj['gsgs_count']} splats"
+
+
+CALLBACKS = {"train": _on_train_finished, "validate": None}
+
+
+def _running(path: str) -> bool:
+    run = job_run(path)
+    return run is not None and run.state == "running"
+
+
+class GSGS_OT_train(bpy.types.Operator):
+    bl_idname = "gsgs.train"
+    bl_label = "Train"
+    bl_description = ("Write a training job (cameras, photos, pseudo poses, settings) and run the engine in the "
+                      "background; the result is imported when it finishes")
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if not pseudo_paths.training_camera_objects(context.scene):
+            cls.poll_message_set("No training cameras: solve cameras or use scene cameras first")
+            return False
+        if _running(context.scene.gsgs.train_job):
+            cls.poll_message_set("Training is running; cancel it first")
+            return False
+        return True
+
+    def execute(self, context):
+        scene = context.scene
+        try:
+            job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
+            scene.gsgs.train_job = str(job.root)
+            run = launch(context, job, on_finish=scene_callback(scene.name, _on_train_finished))
+        except GsgsError as exc:
+            return report_error(self, exc)
+        if run.finished and run.state != "ok":
+            return report_error(self, GsgsError(f"training {run.state}: {run.message}"))
+        self.report({"INFO"}, run.message if run.finished else f"training started: {job.root}")
+        return {"FINISHED"}
+
+
+class GSGS_OT_validate(bpy.types.Operator):
+    bl_idname = "gsgs.validate"
+    bl_label = "Run Validation"
+    bl_description = ("Train on a few views of a dataset with held-out test views and measure PSNR / SSIM / LPIPS "
+                      "on the test views, in the background")
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        s = context.scene.gsgs
+        if not s.validate_source:
+            cls.poll_message_set("Choose a dataset folder first")
+            return False
+        if _running(s.validate_job):
+            cls.poll_message_set("Validation is running; cancel it first")
+            return False
+        return True
+
+    def execute(self, context):
+        s = context.scene.gsgs
+        source = Path(bpy.path.abspath(s.validate_source))
+        if not source.exists():
+            return report_error(self, GsgsError(f"{source}: no such dataset folder"))
+        try:
+            job = Job.create(new_job_dir(context, "validate"), "validate",
+                             data={"path": str(source), "format": "auto", "train_views": int(s.validate_views)},
+                             settings={"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale)},
+                             pipeline={"rounds": int(s.rounds), "generator": s.generator,
+                                       "device": get_prefs(context).device},
+                             models=models_of(get_prefs(context)))
+            s.validate_job = str(job.root)
+            run = launch(context, job)
+        except GsgsError as exc:
+            return report_error(self, exc)
+        if run.finished and run.state != "ok":
+            return report_error(self, GsgsError(f"validation {run.state}: {run.message}"))
+        self.report({"INFO"}, run.message if run.finished else f"validation started: {job.root}")
+        return {"FINISHED"}
+
+
+class GSGS_OT_cancel_job(bpy.types.Operator):
+    bl_idname = "gsgs.cancel_job"
+    bl_label = "Cancel"
+    bl_description = "Ask the running job to stop (it saves a checkpoint); it is terminated if it does not stop soon"
+
+    kind: bpy.props.EnumProperty(items=JOB_KINDS, default="train")
+
+    def execute(self, context):
+        run = job_run(getattr(context.scene.gsgs, f"{self.kind}_job"))
+        if run is None or run.state != "running":
+            self.report({"WARNING"}, "nothing is running")
+            return {"CANCELLED"}
+        run.request_cancel()
+        self.report({"INFO"}, "cancel requested")
+        return {"FINISHED"}
+
+
+class GSGS_OT_resume_job(bpy.types.Operator):
+    bl_idname = "gsgs.resume_job"
+    bl_label = "Resume"
+    bl_description = "Run the job folder again; training continues from its last checkpoint"
+
+    kind: bpy.props.EnumProperty(items=JOB_KINDS, default="train")
+
+    def execute(self, context):
+        scene = context.scene
+        path = getattr(scene.gsgs, f"{self.kind}_job")
+        run = job_run(path)
+        if run is None:
+            return report_error(self, GsgsError(f"{path or 'job'}: no job folder to resume"))
+        if run.state == "running":
+            return report_error(self, GsgsError("the job is already running"))
+        callback = None
+        if self.kind == "sfm":
+            from .ops_photos import _on_sfm_finished
+
+            callback = scene_callback(scene.name, _on_sfm_finished)
+        elif CALLBACKS.get(self.kind):
+            callback = scene_callback(scene.name, CALLBACKS[self.kind])
+        try:
+            run = launch(context, Job.open(run.job_dir), on_finish=callback)
+        except GsgsError as exc:
+            return report_error(self, exc)
+        self.report({"INFO"}, run.message if run.finished else "resumed")
+        return {"FINISHED"}
+
+
+CLASSES = (GSGS_OT_train, GSGS_OT_validate, GSGS_OT_cancel_job, GSGS_OT_resume_job)

@@ -1,0 +1,259 @@
+"""Add-on preferences (engine interpreter, model folders, device) and per-scene settings.
+
+The .blend keeps only settings and job folder paths; images, progress and results stay in
+the job folders, so a file opened on another machine points at (and can re-run) its jobs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import bpy
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
+                       StringProperty)
+
+# The checkout this add-on runs from, when it is one (gsgs_blender/ next to gsgs_engine/).
+_CHECKOUT = Path(__file__).resolve().parents[1]
+ADDON_ID = __package__
+
+
+def default_python() -> str:
+    venv = _CHECKOUT / ".venv" / ("Scripts/python.exe" if os.name == "nt" else "bin/python")
+    return str(venv) if venv.exists() else "python3"
+
+
+def default_engine_root() -> str:
+    return str(_CHECKOUT) if (_CHECKOUT / "gsgs_engine" / "__main__.py").is_file() else ""
+
+
+DEVICES = [("auto", "Auto", "CUDA when available, else CPU"),
+           ("cpu", "CPU", "always the CPU (slow, works everywhere)"),
+           ("cuda", "CUDA", "an NVIDIA GPU; the job fails clearly when none is present")]
+
+
+class GSGS_AddonPreferences(bpy.types.AddonPreferences):
+    bl_idname = ADDON_ID
+
+    python_path: StringProperty(
+        name="Engine Python", subtype="FILE_PATH", default=default_python(),
+        description="Python interpreter with torch, pycolmap and OpenCV that runs the engine jobs")
+    engine_root: StringProperty(
+        name="Engine Source", subtype="DIR_PATH", default=default_engine_root(),
+        description="Folder holding gsgs_engine/ (a source checkout), put first on the engine's PYTHONPATH; "
+                    "leave empty when the engine is installed in that Python")
+    jobs_dir: StringProperty(
+        name="Jobs Folder", subtype="DIR_PATH", default="",
+        description="Where new job folders go; empty: next to the saved .blend (gsgs_jobs/), else the temp folder")
+    diffusion_dir: StringProperty(
+        name="Diffusion Model", subtype="DIR_PATH", default="",
+        description="Local Stable Diffusion 1.5-class model folder (diffusers layout); empty: weights-free prior")
+    depth_adapter_dir: StringProperty(
+        name="Depth Adapter", subtype="DIR_PATH", default="",
+        description="Local depth T2I-Adapter folder (diffusers layout)")
+    depth_estimator_dir: StringProperty(
+        name="Depth Estimator", subtype="DIR_PATH", default="",
+        description="Local DPT depth estimator folder (transformers layout)")
+    device: EnumProperty(name="Device", items=DEVICES, default="auto",
+                         description="Where the engine trains")
+    engine_report: StringProperty(name="Engine Report", default="",
+                                  description="Result of the last Check Engine")
+
+    def draw(self, context):
+        layout = self.layout
+        col = layout.column()
+        col.prop(self, "python_path")
+        col.prop(self, "engine_root")
+        col.prop(self, "jobs_dir")
+        col.prop(self, "device")
+        box = layout.box()
+        box.label(text="Model folders (local; nothing is downloaded)")
+        box.prop(self, "diffusion_dir")
+        box.prop(self, "depth_adapter_dir")
+        box.prop(self, "depth_estimator_dir")
+        row = layout.row()
+        row.operator("gsgs.check_engine", icon="CONSOLE")
+        for line in self.engine_report.split("\n"):
+            if line:
+                layout.label(text=line)
+
+
+class _Defaults:
+    """Preferences when the add-on was registered without the add-on system (bpy module tests)."""
+
+    python_path = default_python()
+    engine_root = default_engine_root()
+    jobs_dir = ""
+    diffusion_dir = depth_adapter_dir = depth_estimator_dir = ""
+    device = "auto"
+    engine_report = ""
+
+
+_FALLBACK = _Defaults()
+
+
+def get_prefs(context=None):
+    context = context or bpy.context
+    addon = context.preferences.addons.get(ADDON_ID)
+    return addon.preferences if addon is not None and addon.preferences is not None else _FALLBACK
+
+
+def models_of(prefs) -> dict:
+    return {"diffusion": bpy.path.abspath(prefs.diffusion_dir) or None,
+            "depth_adapter": bpy.path.abspath(prefs.depth_adapter_dir) or None,
+            "depth_estimator": bpy.path.abspath(prefs.depth_estimator_dir) or None}
+
+
+def jobs_root(context=None) -> Path:
+    prefs = get_prefs(context)
+    if prefs.jobs_dir:
+        return Path(bpy.path.abspath(prefs.jobs_dir))
+    if bpy.data.filepath:
+        return Path(bpy.path.abspath("//gsgs_jobs"))
+    return Path(tempfile.gettempdir()) / "gsgs_jobs"
+
+
+# What the engine interpreter reports about itself; printed as one JSON line.
+CHECK_SCRIPT = r"""
+import json, sys
+info = {"python": sys.version.split()[0]}
+for name in ("numpy", "torch", "pycolmap", "cv2", "diffusers"):
+    try:
+        mod = __import__(name)
+        info[name] = getattr(mod, "__version__", "?")
+    except Exception as exc:
+        info[name] = None
+try:
+    import torch
+    info["cuda"] = torch.cuda.is_available()
+    info["cuda_device"] = torch.cuda.get_device_name(0) if info["cuda"] else None
+except Exception:
+    info["cuda"] = False
+try:
+    import gsgs_engine
+    info["gsgs_engine"] = gsgs_engine.__version__
+    try:
+        from gsgs_engine.render import available_backends
+        info["backends"] = list(available_backends())
+    except Exception:
+        info["backends"] = None
+except Exception as exc:
+    info["gsgs_engine"] = None
+    info["engine_error"] = f"{type(exc).__name__}: {exc}"
+print("GSGS_CHECK " + json.dumps(info))
+"""
+
+
+def check_engine(python: str, engine_root: str = "", timeout: float = 120.0) -> tuple[bool, str]:
+    """Run CHECK_SCRIPT in the engine interpreter (argument list, no shell) -> (usable, report)."""
+    from .job_runner import engine_env
+
+    try:
+        proc = subprocess.run([python, "-c", CHECK_SCRIPT], capture_output=True, text=True, timeout=timeout,
+                              env=engine_env(engine_root or None), cwd=engine_root or None)
+    except FileNotFoundError:
+        return False, f"{python}: no such interpreter; set Engine Python to a Python 3.11 with the engine installed"
+    except subprocess.TimeoutExpired:
+        return False, f"{python}: no answer within {timeout:.0f} s"
+    line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("GSGS_CHECK ")), None)
+    if line is None:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+        return False, f"{python} failed (exit {proc.returncode}): {tail[0]}"
+    info = json.loads(line[len("GSGS_CHECK "):])
+    missing = [k for k in ("numpy", "torch", "pycolmap", "cv2", "gsgs_engine") if not info.get(k)]
+    lines = [f"Python {info['python']}  numpy {info.get('numpy')}  torch {info.get('torch')}",
+             f"pycolmap {info.get('pycolmap')}  OpenCV {info.get('cv2')}  diffusers {info.get('diffusers')}",
+             f"CUDA: {info.get('cuda_device') or 'not available'}"
+             + (f"  backends: {', '.join(info['backends'])}" if info.get("backends") else "")]
+    if missing:
+        lines.append("missing: " + ", ".join(missing) + (f" ({info['engine_error']})" if info.get("engine_error") else ""))
+    return not missing, "\n".join(lines)
+
+
+class GSGS_OT_check_engine(bpy.types.Operator):
+    bl_idname = "gsgs.check_engine"
+    bl_label = "Check Engine"
+    bl_description = "Run the engine Python once and report torch, pycolmap and OpenCV versions and backends"
+
+    def execute(self, context):
+        prefs = get_prefs(context)
+        ok, report = check_engine(bpy.path.abspath(prefs.python_path), bpy.path.abspath(prefs.engine_root))
+        prefs.engine_report = report
+        self.report({"INFO"} if ok else {"ERROR"}, report.replace("\n", "; "))
+        return {"FINISHED"} if ok else {"CANCELLED"}
+
+
+ORIENTATIONS = [("LOOK_AT", "Look at Centre", "every pseudo camera looks at the scene centre"),
+                ("SLERP", "Interpolate", "orientation slerped between the two nearest training cameras")]
+GENERATORS = [("auto", "Auto", "diffusion when the model folders are set, else the weights-free warp prior"),
+              ("diffusion", "Diffusion", "depth-conditioned latent diffusion with LoRA adaptation (needs models)"),
+              ("warp", "Warp + Inpaint", "weights-free: warp training photos with rendered depth, inpaint holes")]
+
+
+def _update_display(self, context) -> None:
+    """Push the display settings into the result object's geometry-nodes modifier."""
+    obj = self.result_object
+    mod = obj.modifiers.get("GS-GS Splats") if obj is not None else None
+    if mod is None or mod.node_group is None:
+        return
+    from . import node_groups, splat_import
+
+    count = len(obj.data.vertices) if obj.type == "MESH" else 0
+    node_groups.set_modifier_input(mod, "Display Ratio", splat_import.display_ratio_for(count, self.max_display))
+    node_groups.set_modifier_input(mod, "Size", float(self.splat_size))
+    obj.update_tag()
+
+
+class GSGS_SceneSettings(bpy.types.PropertyGroup):
+    photos_dir: StringProperty(name="Photos", subtype="DIR_PATH", description="Folder of photos to reconstruct")
+    max_image_size: IntProperty(name="Max Image Size", default=1600, min=64, max=8192,
+                                description="SfM works on photos downscaled to this longer side")
+    sfm_job: StringProperty(name="SfM Job", subtype="DIR_PATH", description="Job folder of the camera solve")
+    camera_collection: PointerProperty(name="Cameras", type=bpy.types.Collection,
+                                       description="Collection whose camera objects are the training views")
+    points_object: PointerProperty(name="Sparse Points", type=bpy.types.Object,
+                                   description="Sparse SfM points (initialise the splats)")
+    pseudo_curve: PointerProperty(name="Path", type=bpy.types.Object,
+                                  description="Curve the pseudo cameras are sampled along")
+    pseudo_count: IntProperty(name="Pseudo Views", default=16, min=1, max=512,
+                              description="How many pseudo poses to sample along the path")
+    pseudo_orientation: EnumProperty(name="Orientation", items=ORIENTATIONS, default="LOOK_AT")
+    pseudo_poses: StringProperty(name="Pseudo Poses", default="[]",
+                                 description="Sampled pseudo poses as JSON (Camera.to_dict list)")
+    show_frusta: BoolProperty(name="Show Frusta", default=True, description="Draw the pseudo cameras in the viewport")
+    iterations: IntProperty(name="Iterations", default=10000, min=1, max=1_000_000,
+                            description="Gaussian-splat optimisation steps in all (the paper uses 10,000)")
+    rounds: IntProperty(name="Rounds", default=3, min=0, max=20,
+                        description="Hallucination rounds: regenerate pseudo views this many times")
+    resolution_scale: FloatProperty(name="Resolution", default=1.0, min=0.05, max=1.0, subtype="FACTOR",
+                                    description="Train on images downscaled by this factor")
+    generator: EnumProperty(name="Generator", items=GENERATORS, default="auto")
+    train_job: StringProperty(name="Train Job", subtype="DIR_PATH", description="Job folder of the training run")
+    result_object: PointerProperty(name="Result", type=bpy.types.Object, description="Imported splat object")
+    max_display: IntProperty(name="Viewport Splats", default=200_000, min=0, update=_update_display,
+                             description="At most this many splats drawn in the viewport (0: all); renders use all")
+    splat_size: FloatProperty(name="Splat Size", default=1.0, min=0.0, max=10.0, update=_update_display,
+                              description="Sphere radius in standard deviations of each Gaussian")
+    validate_source: StringProperty(name="Dataset", subtype="DIR_PATH",
+                                    description="A scene with held-out test views (e.g. NeRF-synthetic) to validate on")
+    validate_views: IntProperty(name="Train Views", default=8, min=1, max=200,
+                                description="Training views picked evenly from the dataset's train split")
+    validate_job: StringProperty(name="Validate Job", subtype="DIR_PATH", description="Job folder of the validation run")
+
+
+CLASSES = (GSGS_AddonPreferences, GSGS_OT_check_engine, GSGS_SceneSettings)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.gsgs = PointerProperty(type=GSGS_SceneSettings)
+
+
+def unregister() -> None:
+    del bpy.types.Scene.gsgs
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,195 @@
+"""The add-on with the real bpy module: registration, sidebar, operators, the job folder it writes."""
+
+from __future__ import annotations
+
+import ast
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import REPO, shared_scene
+
+bpy = pytest.importorskip("bpy")
+import gsgs_blender  # noqa: E402  (needs bpy)
+from gsgs_blender import camera_convert, job_runner, operators, panels, pseudo_paths  # noqa: E402
+
+pytestmark = pytest.mark.blender
+ADDON_DIR = REPO / "gsgs_blender"
+
+
+@pytest.fixture()
+def addon(tmp_path):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    gsgs_blender.register()
+    from gsgs_blender import preferences
+
+    old = preferences._FALLBACK.jobs_dir
+    preferences._FALLBACK.jobs_dir = str(tmp_path / "jobs")
+    yield bpy.context.scene
+    preferences._FALLBACK.jobs_dir = old
+    gsgs_blender.unregister()
+    job_runner.RUNS.clear()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+def test_register_unregister_twice():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    for _ in range(2):
+        gsgs_blender.register()
+        assert hasattr(bpy.types, "GSGS_PT_photos") and hasattr(bpy.types.Scene, "gsgs")
+        assert bpy.ops.gsgs.train.idname() == "GSGS_OT_train"
+        assert bpy.context.scene.gsgs.pseudo_count == 16
+        gsgs_blender.unregister()
+        assert not hasattr(bpy.types, "GSGS_PT_photos") and not hasattr(bpy.types.Scene, "gsgs")
+        assert not hasattr(bpy.types, "GSGS_OT_train")
+
+
+def test_sidebar_order_and_location():
+    ordered = sorted(panels.CLASSES, key=lambda c: c.bl_order)
+    assert [c.bl_label for c in ordered] == ["Photos", "Cameras", "Pseudo Paths", "Train", "Result", "Validate"]
+    assert {(c.bl_space_type, c.bl_region_type, c.bl_category) for c in panels.CLASSES} == {("VIEW_3D", "UI", "GS-GS")}
+
+
+def test_every_operator_has_a_tooltip():
+    for cls in operators.all_classes():
+        assert cls.bl_description.strip(), cls.__name__
+        assert cls.bl_idname.startswith("gsgs."), cls.__name__
+
+
+def test_disabled_operators_say_why(addon):
+    assert not bpy.ops.gsgs.train.poll()
+    with pytest.raises(RuntimeError, match="No training cameras"):
+        bpy.ops.gsgs.train()
+    with pytest.raises(RuntimeError, match="photos folder"):
+        bpy.ops.gsgs.import_photos()
+
+
+def test_addon_modules_never_import_heavy_packages():
+    heavy = {"torch", "cv2", "pycolmap", "diffusers", "transformers"}
+    for path in ADDON_DIR.glob("*.py"):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            for name in names:
+                assert name.split(".")[0] not in heavy, f"{path.name} imports {name}"
+
+
+def _lego_cameras(scene, ids=(0, 2, 4, 6)):
+    from gsgs_engine.cameras import camera_from_nerf
+
+    root = shared_scene("lego_200")
+    meta = json.loads((root / "transforms_train.json").read_text())
+    coll = scene.collection
+    objs, cams = [], []
+    for i in ids:
+        frame = meta["frames"][i]
+        cam = camera_from_nerf(np.array(frame["transform_matrix"]), 200, 200, camera_angle_x=meta["camera_angle_x"],
+                               name=f"lego_{i}")
+        obj = camera_convert.new_camera_object(cam, coll, scene)
+        image = str((root / (frame["file_path"] + ".png")).resolve())
+        img = bpy.data.images.load(image)
+        bg = obj.data.background_images.new()
+        bg.image = img
+        objs.append(obj)
+        cams.append((cam, image))
+    return objs, cams
+
+
+def test_known_poses_pseudo_path_and_train_job(addon, tmp_path):
+    from gsgs_engine.io import load_scene
+    from gsgs_engine.job import Job
+
+    scene = addon
+    objs, cams = _lego_cameras(scene)
+    assert bpy.ops.gsgs.use_scene_cameras() == {"FINISHED"}
+    assert len(pseudo_paths.training_camera_objects(scene)) == 4
+    assert bpy.ops.gsgs.make_pseudo_path(closed=True) == {"FINISHED"}
+    scene.gsgs.pseudo_count = 12
+    assert bpy.ops.gsgs.sample_pseudo_poses() == {"FINISHED"}
+    poses = pseudo_paths.poses_from_json(scene.gsgs.pseudo_poses)
+    assert len(poses) == 12
+    by_name = {c.name: c for c, _ in cams}
+    from gsgs_engine.cameras import Camera
+
+    for pose in poses:
+        cam = Camera.from_dict(pose)
+        nearest = by_name[pose["nearest"]]
+        # Blender stores lens in float32: equal to ~1e-7 relative.
+        np.testing.assert_allclose([cam.fx, cam.cx, cam.width], [nearest.fx, nearest.cx, nearest.width], rtol=1e-6)
+        # The lego cameras look at the origin: every pseudo camera's axis passes through it.
+        axis_to_origin = -cam.center - (-cam.center @ cam.R[2]) * cam.R[2]
+        assert np.linalg.norm(axis_to_origin) < 0.05
+    # The path passes through the cameras: the first pose sits on the first camera of the ring.
+    positions = np.array([c.center for c, _ in sorted(cams, key=lambda c: c[0].name)])
+    first = positions[pseudo_paths.ring_order(positions)[0]]
+    np.testing.assert_allclose(Camera.from_dict(poses[0]).center, first, atol=1e-4)
+
+    from gsgs_blender.ops_train import train_spec
+
+    job = Job.create(tmp_path / "train_job", "train", **train_spec(bpy.context))
+    loaded = load_scene(job.root)  # the engine reads what the add-on wrote
+    assert len(loaded.train) == 4 and len(job.spec["pseudo_poses"]) == 12
+    for view, (cam, image) in zip(loaded.train, sorted(cams, key=lambda c: c[0].name)):
+        np.testing.assert_allclose(view.camera.R, cam.R, atol=1e-6)
+        np.testing.assert_allclose(view.camera.t, cam.t, atol=1e-6)
+        assert view.camera.fx == pytest.approx(cam.fx, rel=1e-6)
+        assert Path(view.image_path).resolve() == Path(image)
+    assert set(job.spec["settings"]) == {"iters", "resolution_scale"}
+
+
+def test_slerp_orientation_stays_between_neighbours(addon):
+    scene = addon
+    _lego_cameras(scene)
+    bpy.ops.gsgs.use_scene_cameras()
+    bpy.ops.gsgs.make_pseudo_path(closed=False, kind="POLY")
+    scene.gsgs.pseudo_orientation = "SLERP"
+    scene.gsgs.pseudo_count = 5
+    bpy.ops.gsgs.sample_pseudo_poses()
+    poses = pseudo_paths.poses_from_json(scene.gsgs.pseudo_poses)
+    objs = pseudo_paths.training_camera_objects(scene)
+    order = pseudo_paths.ring_order(np.array([np.asarray(o.matrix_world)[:3, 3] for o in objs]))
+    first = camera_convert.camera_from_object(objs[order[0]], scene)
+    # The open path starts at the first camera: the first pose is that camera.
+    np.testing.assert_allclose(np.array(poses[0]["R"]), first.R, atol=1e-5)
+    np.testing.assert_allclose(np.array(poses[0]["t"]), first.t, atol=1e-4)
+
+
+@pytest.mark.slow
+def test_check_engine_reports_versions():
+    from gsgs_blender.preferences import check_engine
+
+    ok, report = check_engine(sys.executable, str(REPO))
+    assert ok, report
+    import torch
+
+    assert f"torch {torch.__version__}" in report and "pycolmap" in report
+
+
+def test_check_engine_with_a_bad_interpreter(tmp_path):
+    from gsgs_blender.preferences import check_engine
+
+    ok, report = check_engine(str(tmp_path / "python-nope"))
+    assert not ok and "no such interpreter" in report
+
+
+@pytest.mark.slow
+def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
+    from gsgs_blender import preferences
+
+    scene = addon
+    preferences._FALLBACK.python_path = sys.executable
+    preferences._FALLBACK.engine_root = str(REPO)
+    _lego_cameras(scene, ids=(0, 1, 2, 3, 4, 5))
+    bpy.ops.gsgs.use_scene_cameras()
+    scene.gsgs.iterations = 30
+    scene.gsgs.resolution_scale = 0.25
+    assert bpy.ops.gsgs.train() == {"FINISHED"}  # headless: waits for the job
+    run = job_runner.attach(bpy.path.abspath(scene.gsgs.train_job))
+    assert run.state == "ok", run.message
+    obj = scene.gsgs.result_object
+    assert obj is not None and obj["gsgs_count"] > 0
+    assert len(obj.data.vertices) == obj["gsgs_count"]
