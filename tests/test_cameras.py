@@ -346,3 +346,19 @@ def test_one_point_lands_on_one_pixel_through_every_convention():
     p_blender = np.linalg.inv(m) @ np.r_[point[0], 1.0]
     assert p_blender[2] == pytest.approx(-z_ref[0])
     assert np.sign(p_blender[1]) == -np.sign(uv_ref[0, 1] - cam.cy)
+
+
+@pytest.mark.parametrize("model,params", [
+    ("SIMPLE_RADIAL", [300, 161, 119, -0.12]),
+    ("RADIAL", [300, 160, 120, 0.08, 0.01]),
+    ("OPENCV", [300, 290, 158, 122, -0.1, 0.02, 0.002, -0.001]),
+    ("FULL_OPENCV", [300, 290, 158, 122, -0.1, 0.02, 0.002, -0.001, 0.001, 0.01, 0.002, 0.003]),
+])
+def test_distortion_matches_pycolmap(model, params):
+    pycolmap = pytest.importorskip("pycolmap")
+    ref = pycolmap.Camera(model=model, width=320, height=240, params=params)
+    target, und = camera_from_colmap([1, 0, 0, 0], [0, 0, 0], model, params, 320, 240)
+    pc = np.c_[np.random.default_rng(2).uniform(-0.5, 0.5, size=(50, 2)), np.ones(50)]
+    xd, yd = distort_normalized(pc[:, 0], pc[:, 1], und.coeffs)
+    ours = np.stack([und.source.fx * xd + und.source.cx, und.source.fy * yd + und.source.cy], axis=1)
+    np.testing.assert_allclose(ours, ref.img_from_cam(pc), atol=1e-9)
