@@ -161,8 +161,6 @@ class ImageLoader:
         h, w = img.shape[:2]
         if (w, h) != tuple(self.size):
             img = cv2.resize(img, tuple(self.size), interpolation=cv2.INTER_AREA)
-            if img.ndim == 2:
-                img = img[..., None]
         return img
 
 
