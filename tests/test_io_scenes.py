@@ -254,7 +254,7 @@ def test_colmap_distorted_photo_is_undistorted_on_load(tmp_path):
     img = view.image()
     expected = pattern((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy)
     err = np.abs(img[..., 0] - expected)
-    assert np.median(err) < 0.003 and err[2:-2, 2:-2].max() < 0.02  # bilinear resampling error only
+    assert np.median(err) < 5e-4 and err[2:-2, 2:-2].max() < 3e-3  # bilinear resampling error only (measured 5e-5, 2e-4)
     # the same photo read without undistortion is measurably different
     raw = np.abs(photo[..., 0] / 65535.0 - expected)
     assert np.median(raw) > 5 * np.median(err)
