@@ -132,7 +132,7 @@ def _parse_header(path: Path) -> tuple[str, list[_Element], int]:
         fmt = None
         elements: list[_Element] = []
         while True:
-            line = f.readline(4096)
+            line = f.readline(65536)
             if not line.endswith(b"\n"):
                 raise GsgsError(f"{path}: the PLY header has no 'end_header' line; the file is truncated or not a PLY")
             if f.tell() > _MAX_HEADER_BYTES:
@@ -390,18 +390,21 @@ def _write_vertex_blocks(path: Path, blocks: list[tuple[tuple[str, ...], np.ndar
             shape = values.shape if len(names) > 1 else values.shape[:1]
             raise GsgsError(f"{path}: PLY property {names[0]!r} has shape {shape}; every property needs shape ({n if n is not None else 'N'},)")
         n = values.shape[0]
-        prepared.append((names, np.ascontiguousarray(values, dtype=values.dtype.newbyteorder("<"))))
+        prepared.append((names, values.astype(values.dtype.newbyteorder("<"), copy=False)))
     n = n or 0
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     header += [f"property {_NUMPY_TO_PLY[values.dtype.str[1:]]} {name}" for names, values in prepared for name in names]
     header.append("end_header")
-    row_bytes = sum(values.shape[1] * values.dtype.itemsize for _, values in prepared)
-    rows = np.empty((n, row_bytes), np.uint8)
-    offset = 0
-    for _, values in prepared:
-        width = values.shape[1] * values.dtype.itemsize
-        rows[:, offset:offset + width] = values.view(np.uint8).reshape(n, width)
-        offset += width
+    if len({values.dtype for _, values in prepared}) <= 1:  # e.g. all float32: one gathering copy
+        rows = np.concatenate([values for _, values in prepared], axis=1) if prepared else np.empty((n, 0), np.uint8)
+    else:
+        row_bytes = sum(values.shape[1] * values.dtype.itemsize for _, values in prepared)
+        rows = np.empty((n, row_bytes), np.uint8)
+        offset = 0
+        for _, values in prepared:
+            width = values.shape[1] * values.dtype.itemsize
+            rows[:, offset:offset + width] = np.ascontiguousarray(values).view(np.uint8).reshape(n, width)
+            offset += width
     _atomic_write(path, ("\n".join(header) + "\n").encode("ascii"), rows)
 
 
