@@ -71,6 +71,7 @@ class SfmResult:
     skipped_files: list[str]  # files in the folder that are not images
     mean_reprojection_error: float
     report_path: Path
+    notes: list[str] = field(default_factory=list)  # adjustments made to the request, for the user
 
     @property
     def num_registered(self) -> int:
@@ -130,11 +131,17 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
         raise GsgsError(f"camera model {camera_model!r} is not supported; use one of {', '.join(CAMERA_MODELS)}")
     if int(max_image_size) < 64:
         raise GsgsError(f"max_image_size {max_image_size} is too small; use at least 64 (1600 is a good default)")
-    names, skipped = list_photos(photo_dir)
+    names, skipped, sizes = list_photos(photo_dir)
     if len(names) < 2:
         raise GsgsError(f"{photo_dir}: found {len(names)} image(s); structure from motion needs at least 2 "
                         f"overlapping photos ({', '.join(IMAGE_EXTENSIONS)})")
     _prepare_out_dir(out_dir, photo_dir)
+    notes = []
+    if single_camera and len(set(sizes.values())) > 1:
+        # COLMAP refuses every photo whose size differs from the first under one shared camera.
+        single_camera = False
+        notes.append(f"the photos have {len(set(sizes.values()))} different sizes, so each photo got its own camera")
+        log.info("%s: %s", photo_dir, notes[-1])
     params = {"photo_dir": str(photo_dir.resolve()), "names": names, "out_dir": str(out_dir.resolve()),
               "camera_model": camera_model, "single_camera": bool(single_camera),
               "max_image_size": int(max_image_size), "num_threads": int(num_threads)}
@@ -147,7 +154,7 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
               "max_image_size": int(max_image_size), "models": raw["model_sizes"],
               "num_points": int(len(raw.get("points", ()))),
               "mean_reprojection_error": raw.get("mean_reprojection_error"),
-              "seconds": round(time.time() - started, 2), "skipped_files": skipped,
+              "seconds": round(time.time() - started, 2), "skipped_files": skipped, "notes": notes,
               "views": [asdict(v) for v in views], "log": str(log_path)}
     report_path = out_dir / "sfm_report.json"
     report_path.write_text(json.dumps(report, indent=2))
@@ -167,7 +174,8 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
                      points=np.asarray(raw["points"], dtype=np.float32).reshape(-1, 3),
                      point_colors=np.asarray(raw["colors"], dtype=np.float32).reshape(-1, 3),
                      views=views, skipped_files=skipped,
-                     mean_reprojection_error=float(raw["mean_reprojection_error"]), report_path=report_path)
+                     mean_reprojection_error=float(raw["mean_reprojection_error"]), report_path=report_path,
+                     notes=notes)
 
 
 def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None, **options) -> tuple[np.ndarray, np.ndarray]:
@@ -269,14 +277,14 @@ def run_sfm_job(job) -> SfmResult:
 # ---------------------------------------------------------------------------------------
 # Plain files (numpy only, no pycolmap)
 # ---------------------------------------------------------------------------------------
-def list_photos(photo_dir: Path) -> tuple[list[str], list[str]]:
-    """(image names, skipped non-image names) in a folder; a photo that cannot be decoded
-    is an error naming it, since SfM on the rest would silently lose a view."""
+def list_photos(photo_dir: Path) -> tuple[list[str], list[str], dict[str, tuple[int, int]]]:
+    """(image names, skipped non-image names, name -> (width, height)) in a folder; a photo
+    that cannot be decoded is an error naming it, since SfM on the rest would lose a view."""
     if not photo_dir.is_dir():
         raise GsgsError(f"{photo_dir}: not a folder; pass the folder that holds the photos")
     import cv2
 
-    names, skipped = [], []
+    names, skipped, sizes = [], [], {}
     for path in sorted(photo_dir.iterdir()):
         if path.name.startswith(".") or path.is_dir():
             continue
@@ -288,7 +296,8 @@ def list_photos(photo_dir: Path) -> tuple[list[str], list[str]]:
             raise GsgsError(f"{path}: cannot be read as an image (corrupt or not really "
                             f"{path.suffix.lstrip('.').upper()}); re-export it or move it out of the folder")
         names.append(path.name)
-    return names, skipped
+        sizes[path.name] = (int(img.shape[1]), int(img.shape[0]))
+    return names, skipped, sizes
 
 
 def write_cameras_json(path: Path, cameras: Sequence[Camera], image_paths: Sequence[Path]) -> None:
@@ -601,7 +610,7 @@ def _view_reports(pycolmap, db_path: Path, names: list[str], models: list, min_i
         if r["registered"]:
             pass
         elif name not in images:
-            r["reason"] = "not read by COLMAP: the image format is not supported; convert it to JPEG or PNG"
+            r["reason"] = "not read by COLMAP: it skipped this file (reason in colmap.log); convert it to JPEG"
         elif nf == 0:
             r["reason"] = "no features: the image is blank or has no texture"
         elif not matched:

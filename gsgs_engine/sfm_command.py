@@ -44,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
     print(result.summary())
     for v in result.failed:
         print(f"  {v.name}: {v.reason}")
+    for note in result.notes:
+        print(f"  note: {note}")
     if result.skipped_files:
         print(f"  skipped (not images): {', '.join(result.skipped_files)}")
     print(f"{len(result.points)} points, mean reprojection error {result.mean_reprojection_error:.2f} px, "

@@ -217,3 +217,23 @@ def test_known_pose_triangulation_of_lego_training_views_reprojects(tmp_path):
     assert np.mean(np.all(np.abs(result.points) < 1.5, axis=1)) > 0.9
     pts, cols = triangulate_known_poses(views)
     assert pts.shape[1] == 3 and cols.shape == pts.shape and len(pts) >= 50
+
+
+@pytest.mark.slow
+def test_unrelated_photo_is_reported_by_name_while_the_rest_register(tmp_path):
+    import shutil
+
+    photos = tmp_path / "mixed"
+    photos.mkdir()
+    for f in sorted(shared_scene("photos_santorini").glob("*.jpg")):
+        shutil.copy(f, photos / f.name)
+    flower = sorted((shared_scene("llff_flower") / "images_8").iterdir())[0]
+    shutil.copy(flower, photos / f"unrelated{flower.suffix}")
+    result = run_sfm(photos, tmp_path / "out", max_image_size=800)
+    assert result.summary() == "registered 3/4 views"
+    assert [v.name for v in result.failed] == [f"unrelated{flower.suffix}"]
+    assert result.failed[0].reason.startswith("no matches") and result.failed[0].num_features > 100
+    # A 504x378 photo among 1920x1080 ones cannot share one camera: each gets its own.
+    assert any("different sizes" in note for note in result.notes)
+    assert sorted(c.name for c in result.cameras) == ["frame_00.jpg", "frame_06.jpg", "frame_12.jpg"]
+    assert sorted(p.name for p in (tmp_path / "out" / "images").iterdir()) == sorted(c.name for c in result.cameras)
