@@ -156,6 +156,17 @@ def test_xyz_only_is_grey_and_float_colours(tmp_path):
     assert np.allclose(read_gaussian_ply(tmp_path / "b.ply").rgb()[1], [200 / 255, 0, 1])  # >1 means 0..255
 
 
+def test_splats_with_uchar_colours_instead_of_f_dc(tmp_path):
+    n = 3
+    props = [("float", c, np.arange(n) + 1.0) for c in ("x", "y", "z", "opacity", "scale_0", "scale_1", "scale_2")]
+    props += [("float", f"rot_{i}", np.ones(n)) for i in range(4)]
+    props += [("uchar", c, np.array([0, 51, 255])) for c in ("red", "green", "blue")]
+    raw_ply(tmp_path / "a.ply", props)
+    g = read_gaussian_ply(tmp_path / "a.ply")
+    assert g.defaulted == ("sh_dc",) and g.extra == {}
+    assert np.allclose(g.rgb()[:, 0], [0.0, 0.2, 1.0], atol=1e-6) and np.array_equal(g.opacity_logits, [1, 2, 3])
+
+
 def test_truncated_and_oversized_files_are_refused(tmp_path):
     path = tmp_path / "a.ply"
     write_gaussian_ply(path, random_splats(10, 1))

@@ -107,7 +107,7 @@ class GaussianPly:
         return np.clip(self.sh_dc * SH_C0 + 0.5, 0.0, 1.0)
 
     def opacity(self) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-self.opacity_logits))
+        return 0.5 * (1.0 + np.tanh(0.5 * self.opacity_logits))  # sigmoid without exp overflow
 
     def scales(self) -> np.ndarray:
         return np.exp(self.log_scales)
@@ -238,13 +238,14 @@ def read_ply_vertices(path: str | os.PathLike) -> dict[str, np.ndarray]:
 def read_gaussian_ply(path: str | os.PathLike) -> GaussianPly:
     """Read a 3DGS-layout splat PLY, in any property order, binary (either endianness) or ASCII.
 
-    A file with any of opacity / scale_* / rot_* must have all of them and f_dc_0..2. Files
-    without them are point clouds and get 3DGS's initial values (listed in `defaulted`):
-    colour from f_dc_*, else red/green/blue (integers scaled by their type's maximum, floats
-    taken as [0, 1], or as [0, 255] when any exceeds 1), else grey; opacity 0.1; identity
-    rotation; isotropic scale sqrt(bounding-box surface area / N), the spacing of N points
-    spread over the box's surface; SH degree 0. Missing normals are zeros. float64 values
-    are rounded to float32. Properties not in the layout are kept in `extra`.
+    A file with any of opacity / scale_* / rot_* must have all of them and a colour. Colour is
+    f_dc_*, else red/green/blue as sh_dc = (c - 0.5) / SH_C0 (integers scaled by their
+    type's maximum, floats taken as [0, 1], or as [0, 255] when any exceeds 1), else grey.
+    Files without opacity / scale / rotation are point clouds and get 3DGS's initial values:
+    opacity 0.1, identity rotation, isotropic scale sqrt(bounding-box surface area / N) (the
+    spacing of N points spread over the box's surface), SH degree 0. `defaulted` lists what
+    was filled in. Missing normals are zeros; float64 values are rounded to float32;
+    properties outside the layout are kept in `extra`.
     """
     path = _existing(path)
     data = _read_element(path, "vertex")
@@ -286,22 +287,24 @@ def read_gaussian_ply(path: str | os.PathLike) -> GaussianPly:
     sh_rest = np.ascontiguousarray(rest.reshape(n, 3, k1).transpose(0, 2, 1))  # channel-major on disk
 
     is_gaussian = any(c in present for c in ("opacity",) + _SCALE + _ROT)
+    has_colors = all(c in present for c in _COLOR)
     if is_gaussian:
-        require(_GAUSSIAN_REQUIRED, "a splat file needs f_dc_0..2, opacity, scale_0..2 and rot_0..3")
+        why = "a splat file needs f_dc_0..2 (or red, green, blue), opacity, scale_0..2 and rot_0..3"
+        require(_GAUSSIAN_REQUIRED if not has_colors else _GAUSSIAN_REQUIRED[3:], why)
+    if all(c in present for c in _DC):
         sh_dc = columns(_DC)
+    elif has_colors:
+        sh_dc = _colors_to_sh_dc(np.stack([data[c] for c in _COLOR], axis=1))
+        used.update(_COLOR)
+        defaulted.append("sh_dc")
+    else:
+        sh_dc = np.zeros((n, 3), np.float32)  # grey 0.5
+        defaulted.append("sh_dc")
+    if is_gaussian:
         opacity_logits = columns(("opacity",))[:, 0].copy()
         log_scales = columns(_SCALE)
         quats = columns(_ROT)
     else:
-        if all(c in present for c in _DC):
-            sh_dc = columns(_DC)
-        elif all(c in present for c in _COLOR):
-            sh_dc = _colors_to_sh_dc(np.stack([data[c] for c in _COLOR], axis=1))
-            used.update(_COLOR)
-            defaulted.append("sh_dc")
-        else:
-            sh_dc = np.zeros((n, 3), np.float32)  # grey 0.5
-            defaulted.append("sh_dc")
         opacity_logits = np.full(n, np.log(DEFAULT_OPACITY / (1.0 - DEFAULT_OPACITY)), np.float32)
         log_scales = np.full((n, 3), np.log(_spacing_estimate(positions)), np.float32)
         quats = np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1))
