@@ -1,0 +1,1 @@
+"""Training: Gaussian model optimisation, densification, checkpoints, evaluation."""

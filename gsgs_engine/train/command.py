@@ -1,0 +1,102 @@
+"""`gsgs train DATA --out DIR`: train a Gaussian-splat scene from sparse views.
+
+DIR is a job-like folder: progress.jsonl, status.json, log.txt, checkpoints/, and the
+results point_cloud.ply, renders/ and metrics.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+PRIORS = ("none",)  # the prior's module extends this tuple and handles the others
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from gsgs_engine.train.trainer import DEFAULT_ITERS
+
+    parser.add_argument("data", help="scene folder (NeRF-synthetic, LLFF, COLMAP, photos after sfm, or a job folder)")
+    parser.add_argument("--out", required=True, help="output folder (results, progress.jsonl, checkpoints/)")
+    parser.add_argument("--format", default="auto", choices=["auto", "blender", "llff", "colmap", "photos", "job"])
+    parser.add_argument("--train-split", default=None, help="split to train on (e.g. 'dense' for lego_200)")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--train-views", type=int, default=None, help="train on N views spread over the train split")
+    group.add_argument("--train-ids", default=None, help="comma-separated view ids/names to train on")
+    parser.add_argument("--iters", type=int, default=DEFAULT_ITERS, help=f"optimisation steps (default {DEFAULT_ITERS})")
+    parser.add_argument("--backend", default="auto", choices=["auto", "cpu", "reference", "cuda"])
+    parser.add_argument("--prior", default="none", help="generative prior: none (plain 3DGS)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale factor, e.g. 0.5")
+    parser.add_argument("--sh-degree", type=int, default=3, help="maximum SH degree 0..3 (default 3)")
+    parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (0 = only on exit)")
+    parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in OUT/checkpoints")
+    parser.add_argument("--init", default="auto", choices=["auto", "sfm", "points", "random"],
+                        help="initial Gaussians: SfM of the training views, the source's points, or random")
+    parser.add_argument("--random-background", action="store_true",
+                        help="RGBA scenes: a random background colour each step (target composited on the same)")
+    bg = parser.add_mutually_exclusive_group()
+    bg.add_argument("--white-background", dest="background", action="store_const", const="white")
+    bg.add_argument("--black-background", dest="background", action="store_const", const="black")
+    parser.set_defaults(background="white")
+
+
+def _resume_command(args: argparse.Namespace) -> str:
+    argv = [a for a in sys.argv[1:] if a != "--resume"]
+    if not argv or argv[0] != "train":
+        argv = ["train", str(args.data), "--out", str(args.out)]
+    return "gsgs " + " ".join(shlex.quote(a) for a in argv) + " --resume"
+
+
+def run(args: argparse.Namespace) -> int:
+    from gsgs_engine import GsgsError
+    from gsgs_engine.io import load_scene
+    from gsgs_engine.job import Job
+    from gsgs_engine.train.trainer import (TrainConfig, TrainingCancelled, TrainingInterrupted, train_and_export,
+                                           validate_config)
+
+    if args.prior not in PRIORS:
+        raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIORS)}")
+    if args.resolution_scale <= 0:
+        raise GsgsError(f"--resolution-scale must be positive (got {args.resolution_scale})")
+    config = TrainConfig(iters=args.iters, sh_degree=args.sh_degree, backend=args.backend, seed=args.seed,
+                         checkpoint_every=args.checkpoint_every, random_background=args.random_background,
+                         init=args.init)
+    validate_config(config)
+    out = Path(args.out)
+    job = Job(root=out, spec={"task": "train"})  # a job-like folder; job.json is written only by Job.create
+    out.mkdir(parents=True, exist_ok=True)
+    job.set_status("running", f"training {args.data}")
+    try:
+        background = (1.0, 1.0, 1.0) if args.background == "white" else (0.0, 0.0, 0.0)
+        train_ids = [s.strip() for s in args.train_ids.split(",") if s.strip()] if args.train_ids else None
+        scene = load_scene(args.data, format=args.format, train_split=args.train_split,
+                           train_views=args.train_views, train_ids=train_ids,
+                           resolution_scale=args.resolution_scale, background=background)
+        plan = {"data": str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
+                "resolution_scale": args.resolution_scale, "prior": args.prior}
+        metrics = train_and_export(scene, config, out, out / "checkpoints", job=job, resume=args.resume, plan=plan)
+    except TrainingInterrupted as exc:
+        msg = (f"interrupted at step {exc.step}; checkpoint {exc.checkpoint}; resume with: {_resume_command(args)}")
+        job.set_status("cancelled", msg)
+        print(f"gsgs: {msg}", file=sys.stderr)
+        return exc.exit_code
+    except TrainingCancelled as exc:
+        msg = f"cancelled at step {exc.step}; resume with: {_resume_command(args)}"
+        job.set_status("cancelled", msg)
+        print(f"gsgs: {msg}", file=sys.stderr)
+        return 130
+    except GsgsError as exc:
+        job.set_status("error", str(exc))
+        raise
+    except BaseException as exc:
+        job.set_status("error", f"{type(exc).__name__}: {exc}")
+        raise
+    summary = (f"done: {metrics['iterations']} steps, {metrics['num_gaussians']} Gaussians, "
+               f"{metrics['train_seconds']:.0f} s")
+    if metrics["psnr"] is not None:
+        summary += f", test PSNR {metrics['psnr']:.2f} SSIM {metrics['ssim']:.4f}"
+    job.set_status("ok", summary)
+    print(f"gsgs: {summary}; results in {out}", file=sys.stderr)
+    return 0

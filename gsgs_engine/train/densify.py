@@ -1,0 +1,167 @@
+"""Adaptive density control of 3DGS: clone, split, prune, opacity reset.
+
+Adam's moments follow the Gaussians: appended Gaussians start with zero moments, pruned
+ones take theirs away, so the optimiser never mixes up whose statistics are whose.
+
+Gradient convention: `render()` returns means2d in pixels; 3DGS thresholds the gradient
+with respect to NDC coordinates (x_ndc in [-1, 1] across the image), and
+d pixel / d ndc = W / 2, so dL/d ndc = dL/d pixel * (W / 2, H / 2). The 3DGS threshold
+0.0002 therefore applies unchanged at any image size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from gsgs_engine.gaussians import PARAM_NAMES, GaussianModel, inverse_sigmoid, quat_to_rotmat
+
+ADAM_STATE_KEYS = ("exp_avg", "exp_avg_sq")
+
+
+@dataclass
+class DensifyConfig:
+    grad_threshold: float = 0.0002
+    min_opacity: float = 0.005
+    percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
+    max_world_size: float = 0.1  # prune Gaussians larger than this fraction of the extent (after a reset)
+    max_screen_size: float | None = None  # pixels; None = off (3DGS resets radii before testing, a no-op)
+    split_factor: int = 2
+    max_gaussians: int = 1_000_000
+
+
+class DensifyStats:
+    """Accumulated screen-space gradient norms and maximum radii since the last densification."""
+
+    def __init__(self, n: int):
+        self.grad_accum = torch.zeros(n)
+        self.denom = torch.zeros(n)
+        self.max_radii = torch.zeros(n)
+
+    def accumulate(self, means2d_grad: torch.Tensor | None, radii: torch.Tensor, width: int, height: int) -> None:
+        if means2d_grad is None:
+            return
+        visible = radii > 0
+        g = means2d_grad.detach()[visible, :2] * torch.tensor([width / 2.0, height / 2.0])
+        norms = g.norm(dim=-1)
+        if not bool(torch.isfinite(norms).all()):
+            return  # never let a bad gradient steer densification
+        self.grad_accum[visible] += norms
+        self.denom[visible] += 1
+        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].float())
+
+    def average(self) -> torch.Tensor:
+        avg = self.grad_accum / self.denom.clamp_min(1)
+        return torch.nan_to_num(avg, nan=0.0, posinf=0.0, neginf=0.0)
+
+    def reset(self, n: int) -> None:
+        self.__init__(n)
+
+    def state_dict(self) -> dict:
+        return {"grad_accum": self.grad_accum.clone(), "denom": self.denom.clone(), "max_radii": self.max_radii.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.grad_accum = state["grad_accum"].clone()
+        self.denom = state["denom"].clone()
+        self.max_radii = state["max_radii"].clone()
+
+
+# -- keeping Adam consistent --------------------------------------------------------------
+def _group_for(optimizer: torch.optim.Optimizer, name: str) -> dict:
+    for group in optimizer.param_groups:
+        if group.get("name") == name:
+            return group
+    raise KeyError(f"optimizer has no parameter group {name!r}")
+
+
+def _replace_param(model: GaussianModel, optimizer: torch.optim.Optimizer, name: str, new_value: torch.Tensor,
+                   state_fn) -> None:
+    group = _group_for(optimizer, name)
+    old = group["params"][0]
+    new = new_value.detach().clone().requires_grad_(True)
+    state = optimizer.state.pop(old, None)
+    if state:
+        for key in ADAM_STATE_KEYS:
+            if key in state:
+                state[key] = state_fn(state[key])
+        optimizer.state[new] = state
+    group["params"][0] = new
+    model.params[name] = new
+
+
+def append_gaussians(model: GaussianModel, optimizer: torch.optim.Optimizer, new: dict[str, torch.Tensor]) -> None:
+    """Add Gaussians; their Adam moments start at zero."""
+    for name in PARAM_NAMES:
+        extra = new[name].detach()
+        _replace_param(model, optimizer, name, torch.cat([model.params[name].detach(), extra], dim=0),
+                       lambda s, extra=extra: torch.cat([s, torch.zeros_like(extra)], dim=0))
+
+
+def keep_gaussians(model: GaussianModel, optimizer: torch.optim.Optimizer, keep: torch.Tensor) -> None:
+    """Remove the Gaussians where `keep` is False, with their Adam moments."""
+    for name in PARAM_NAMES:
+        _replace_param(model, optimizer, name, model.params[name].detach()[keep], lambda s: s[keep])
+
+
+# -- the operations -------------------------------------------------------------------------
+def reset_opacity(model: GaussianModel, optimizer: torch.optim.Optimizer, ceiling: float = 0.01) -> None:
+    """Clamp every opacity to at most `ceiling` and forget opacity's Adam moments (3DGS)."""
+    cap = inverse_sigmoid(torch.tensor(ceiling)).item()
+    new = torch.minimum(model.params["opacity_logits"].detach(), torch.tensor(cap))
+    _replace_param(model, optimizer, "opacity_logits", new, torch.zeros_like)
+
+
+def densify_and_prune(model: GaussianModel, optimizer: torch.optim.Optimizer, stats: DensifyStats,
+                      extent: float, config: DensifyConfig, prune_large: bool,
+                      generator: torch.Generator | None = None) -> dict:
+    """Clone small and split large Gaussians with a high mean screen-space gradient, then prune.
+
+    Returns counts {"cloned", "split", "pruned", "num_gaussians"}.
+    """
+    n = model.num_gaussians
+    grads = stats.average()
+    with torch.no_grad():
+        p = {k: v.detach() for k, v in model.params.items()}
+        scale_max = p["log_scales"].exp().max(dim=1).values
+        candidates = grads >= config.grad_threshold
+        budget = max(0, config.max_gaussians - n)
+        if int(candidates.sum()) > budget:  # keep the strongest gradients within the Gaussian budget
+            order = torch.argsort(grads, descending=True)
+            candidates = torch.zeros(n, dtype=torch.bool)
+            candidates[order[:budget]] = True
+            candidates &= grads >= config.grad_threshold
+        small = scale_max <= config.percent_dense * extent
+        clone_mask = candidates & small
+        split_mask = candidates & ~small
+
+        cloned = {k: v[clone_mask] for k, v in p.items()}
+
+        k = config.split_factor
+        idx = split_mask.nonzero(as_tuple=True)[0].repeat(k)
+        stds = p["log_scales"][idx].exp()
+        samples = torch.randn(stds.shape, generator=generator) * stds
+        rots = quat_to_rotmat(p["quats"][idx])
+        split = {k2: v[idx] for k2, v in p.items()}
+        split["means"] = torch.bmm(rots, samples[..., None])[..., 0] + p["means"][idx]
+        split["log_scales"] = p["log_scales"][idx] - torch.log(torch.tensor(0.8 * k))
+
+        new = {name: torch.cat([cloned[name], split[name]], dim=0) for name in PARAM_NAMES}
+    append_gaussians(model, optimizer, new)
+
+    with torch.no_grad():
+        n_new = new["means"].shape[0]
+        total = n + n_new
+        prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool)])
+        prune |= model.opacities.detach() < config.min_opacity
+        if prune_large:
+            prune |= model.scales.detach().max(dim=1).values > config.max_world_size * extent
+            if config.max_screen_size is not None:
+                radii = torch.cat([stats.max_radii, torch.zeros(n_new)])
+                prune |= radii > config.max_screen_size
+        if bool(prune.all()):  # an empty model cannot recover: keep the most opaque one
+            prune[torch.argmax(model.opacities.detach())] = False
+    keep_gaussians(model, optimizer, ~prune)
+    stats.reset(model.num_gaussians)
+    return {"cloned": int(clone_mask.sum()), "split": int(split_mask.sum()), "pruned": int(prune.sum()),
+            "num_gaussians": model.num_gaussians, "before": n, "total_before_prune": total}

@@ -1,0 +1,44 @@
+"""Photometric losses of eq. 11 as named terms; the trainer sums weighted terms.
+
+The prior plugs its own terms (depth regularisation, eq. 10) into the same sum.
+"""
+
+from __future__ import annotations
+
+import torch
+
+DEFAULT_LAMBDA_DSSIM = 0.2
+
+
+def l1_loss(render: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (render - target).abs().mean()
+
+
+def dssim_loss(render: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """D-SSIM = 1 - SSIM (3DGS's convention; images [H, W, 3] in [0, 1])."""
+    from gsgs_engine.metrics import ssim
+
+    return 1.0 - ssim(render, target)
+
+
+def photometric_terms(render: torch.Tensor, target: torch.Tensor, lambda_dssim: float = DEFAULT_LAMBDA_DSSIM,
+                      weight: float = 1.0, prefix: str = "") -> dict[str, tuple[float, torch.Tensor]]:
+    """One view's part of eq. 11: {name: (weight, term)}.
+
+    eq. 11 writes L1 + lambda * D-SSIM; like 3DGS (and the paper's lambda = 0.2 taken from it)
+    we weight it (1 - lambda) * L1 + lambda * D-SSIM, which keeps the loss scale at lambda = 0.
+    `weight` scales the whole view (pseudo views may count less than real ones).
+    """
+    return {f"{prefix}l1": (weight * (1.0 - lambda_dssim), l1_loss(render, target)),
+            f"{prefix}dssim": (weight * lambda_dssim, dssim_loss(render, target))}
+
+
+def total_loss(terms: dict[str, tuple[float, torch.Tensor]]) -> torch.Tensor:
+    """Sum of weighted named terms (eq. 11 when the prior's terms are present)."""
+    total = None
+    for weight, value in terms.values():
+        contribution = weight * value
+        total = contribution if total is None else total + contribution
+    if total is None:
+        raise ValueError("no loss terms")
+    return total

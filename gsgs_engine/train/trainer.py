@@ -1,0 +1,606 @@
+"""3DGS training from sparse views: the loop, NaN safety, checkpoints, signals and the job entry.
+
+Extension points for the generative prior (Alg. 1):
+- `Trainer.set_pseudo_views([...])` replaces the pseudo views (camera + target + weight)
+  between rounds; a pseudo view is rendered every `pseudo_every` steps and adds the
+  "pseudo_l1" / "pseudo_dssim" terms of eq. 11;
+- `Trainer.loss_terms[name] = fn(ctx) -> tensor | (weight, tensor) | None` adds a named term
+  (e.g. the depth regulariser, eq. 10) that sees this step's renders;
+- `Trainer.callbacks.append(fn(trainer, step))` runs after every optimiser step;
+- `Trainer.train(until=k)` trains up to step k, so a pipeline can interleave rounds.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cameras import Camera
+from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
+from gsgs_engine.train import checkpoint as ckpt
+from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_prune, reset_opacity
+from gsgs_engine.train.losses import photometric_terms, total_loss
+from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
+
+# Measured on the 2-core dev machine (see the report in the repo notes): lego_200, 8 views,
+# cpu backend, finishes in about 10 minutes.
+DEFAULT_ITERS = 3000
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass
+class TrainConfig:
+    iters: int = DEFAULT_ITERS
+    sh_degree: int = 3
+    backend: str = "auto"
+    seed: int = 0
+    checkpoint_every: int = 500
+    lambda_dssim: float = 0.2
+    random_background: bool = False
+    init: str = "auto"  # auto | sfm | points | random
+    min_init_points: int = 100
+    random_init_points: int = 5000
+    densify: bool = True
+    pseudo_every: int = 1
+    lr: LearningRates = field(default_factory=LearningRates)
+    densify_config: DensifyConfig = field(default_factory=DensifyConfig)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        d = dict(d)
+        lr = LearningRates(**d.pop("lr", {}))
+        dc = DensifyConfig(**d.pop("densify_config", {}))
+        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(lr=lr, densify_config=dc, **known)
+
+
+@dataclass
+class PseudoView:
+    """An extra supervised view: a camera, a target image [H, W, 3] in [0, 1] and a loss weight."""
+
+    camera: Camera
+    image: np.ndarray | torch.Tensor
+    weight: float = 1.0
+    name: str = ""
+    nearest_train: int | None = None  # index into the trainer's training views
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass
+class StepContext:
+    """What a loss term or callback may look at in the current step."""
+
+    trainer: "Trainer"
+    step: int
+    view_index: int
+    render: Any  # RenderOutput of the training view
+    target: torch.Tensor
+    background: torch.Tensor
+    pseudo: PseudoView | None = None
+    pseudo_render: Any = None
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """SIGINT / SIGTERM arrived: the current step finished and a checkpoint was written."""
+
+    def __init__(self, signum: int, step: int, checkpoint: Path | None):
+        self.signum = signum
+        self.step = step
+        self.checkpoint = checkpoint
+        super().__init__(f"interrupted by signal {signum} at step {step}")
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + int(self.signum)
+
+
+class TrainingCancelled(Exception):
+    """The job folder asked to cancel; a checkpoint was written."""
+
+    def __init__(self, step: int, checkpoint: Path | None):
+        self.step = step
+        self.checkpoint = checkpoint
+        super().__init__(f"cancelled at step {step}")
+
+
+def _as_image_tensor(img) -> torch.Tensor:
+    t = torch.as_tensor(np.asarray(img, dtype=np.float32) if not torch.is_tensor(img) else img).float()
+    if t.ndim != 3 or t.shape[2] != 3:
+        raise GsgsError(f"a target image must be H x W x 3, got shape {tuple(t.shape)}")
+    return t
+
+
+def render_model(model: GaussianModel, camera: Camera, background: torch.Tensor, backend: str = "auto",
+                 sh_degree: int | None = None):
+    """Render the model from `camera` through gsgs_engine.render.render()."""
+    from gsgs_engine.render import render
+
+    degree = model.active_sh_degree if sh_degree is None else sh_degree
+    return render(model.means, model.quats, model.scales, model.opacities, model.sh(degree), camera,
+                  sh_degree=degree, background=background, backend=backend)
+
+
+def initialise_gaussians(scene, train_views, config: TrainConfig, generator: torch.Generator,
+                         log: Callable[[str], None] = print) -> tuple[GaussianModel, InitInfo]:
+    """SfM points from the training views only, else the source's points, else random in the bounds."""
+    reasons = []
+    if config.init in ("auto", "sfm"):
+        try:
+            from gsgs_engine.sfm import triangulate_known_poses
+        except ImportError as exc:
+            reasons.append(f"triangulation unavailable ({exc})")
+        else:
+            try:
+                pts, cols = triangulate_known_poses(train_views)
+            except GsgsError as exc:
+                reasons.append(f"triangulation failed ({exc})")
+            else:
+                pts = np.asarray(pts, dtype=np.float32).reshape(-1, 3)
+                if len(pts) >= config.min_init_points:
+                    info = InitInfo("sfm", len(pts), f"{len(pts)} points triangulated from the {len(train_views)} "
+                                                     "training views (known poses)")
+                    return GaussianModel.from_points(pts, cols, config.sh_degree), info
+                reasons.append(f"triangulation gave {len(pts)} points (< {config.min_init_points})")
+    if config.init in ("auto", "points"):
+        if scene.points is not None and len(scene.points) >= config.min_init_points:
+            info = InitInfo("points", len(scene.points), "the source's sparse points ("
+                            + "; ".join(reasons) + ")" if reasons else "the source's sparse points")
+            return GaussianModel.from_points(scene.points, scene.point_colors, config.sh_degree), info
+        n = 0 if scene.points is None else len(scene.points)
+        reasons.append(f"the source has {n} sparse points (< {config.min_init_points})")
+    if config.init not in ("auto", "sfm", "points", "random"):
+        raise GsgsError(f"unknown init {config.init!r}; use auto, sfm, points or random")
+    lo, hi = scene_bounds_from_cameras([v.camera for v in train_views], scene.near, scene.far)
+    model = GaussianModel.random_in_box(lo, hi, config.random_init_points, config.sh_degree, generator=generator)
+    why = "; ".join(reasons) if reasons else "requested"
+    return model, InitInfo("random", config.random_init_points,
+                           f"random in the box {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} ({why})")
+
+
+class Trainer:
+    def __init__(self, scene, config: TrainConfig, checkpoint_dir: Path | None = None,
+                 cancel_check: Callable[[], bool] | None = None, progress=None,
+                 train_views: list | None = None, log: Callable[[str], None] | None = None):
+        self.scene = scene
+        self.config = config
+        self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
+        self.cancel_check = cancel_check or (lambda: False)
+        self.progress = progress
+        self.log = log or (lambda msg: None)
+        self.train_views = list(scene.train if train_views is None else train_views)
+        if not self.train_views:
+            raise GsgsError(f"{scene.source}: no training views; check --train-split / --train-ids")
+        self.schedule = Schedule.scaled(config.iters)
+        self.background = torch.as_tensor(np.asarray(scene.background, dtype=np.float32))
+        self.loss_terms: dict[str, Callable[[StepContext], Any]] = {}
+        self.callbacks: list[Callable[["Trainer", int], None]] = []
+        self.pseudo_views: list[PseudoView] = []
+        self._pseudo_targets: list[torch.Tensor] = []
+        self.phase_seconds: dict[str, float] = {"init": 0.0, "render": 0.0, "backward": 0.0, "optimise": 0.0,
+                                                "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
+        self.step = 0
+        self.nan_steps_skipped = 0
+        self.train_seconds = 0.0
+        self.last_losses: dict[str, float] = {}
+        self.densify_log: list[dict] = []
+        self._signal: int | None = None
+
+        t0 = time.perf_counter()
+        self.extent = self._extent()
+        self._targets, self._alphas = self._load_targets()
+        self.np_rng = np.random.default_rng(config.seed)
+        self.torch_gen = torch.Generator().manual_seed(config.seed)
+        torch.manual_seed(config.seed)
+        self._order: list[int] = []
+        self.model: GaussianModel | None = None
+        self.optimizer: torch.optim.Optimizer | None = None
+        self.stats: DensifyStats | None = None
+        self.init_info: InitInfo | None = None
+        self.phase_seconds["init"] += time.perf_counter() - t0
+
+    # -- set-up -------------------------------------------------------------------------
+    def _extent(self) -> float:
+        centers = np.stack([v.camera.center for v in self.train_views])
+        radius = float(np.linalg.norm(centers - centers.mean(0), axis=1).max()) * 1.1
+        if radius < 1e-3:  # one camera (or coincident ones): fall back to unit extent
+            radius = 1.0
+        return radius
+
+    def _load_targets(self):
+        targets, alphas = [], []
+        for view in self.train_views:
+            img = view.image()
+            targets.append(torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32)))
+            a = view.alpha() if (self.config.random_background and self.scene.has_alpha) else None
+            alphas.append(None if a is None else torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)))
+        return targets, alphas
+
+    def setup(self, resume: bool = False, initial_model: GaussianModel | None = None) -> None:
+        """Initialise a new model (or take `initial_model`), or continue from the newest checkpoint when `resume`."""
+        t0 = time.perf_counter()
+        path = ckpt.latest_checkpoint(self.checkpoint_dir) if (resume and self.checkpoint_dir) else None
+        if path is not None:
+            self._load(path)
+            self.log(f"resuming from {path} at step {self.step}/{self.config.iters}")
+        else:
+            if resume:
+                self.log(f"no checkpoint in {self.checkpoint_dir}; starting from scratch")
+            if initial_model is not None:
+                self.model = initial_model
+                self.init_info = InitInfo("given", initial_model.num_gaussians, "a model passed by the caller")
+            else:
+                self.model, self.init_info = initialise_gaussians(self.scene, self.train_views, self.config,
+                                                                  self.torch_gen, self.log)
+            self.log(f"init: {self.init_info.method}, {self.init_info.num_points} Gaussians ({self.init_info.reason})")
+            self.optimizer = self._make_optimizer()
+            self.stats = DensifyStats(self.model.num_gaussians)
+        self.phase_seconds["init"] += time.perf_counter() - t0
+
+    def _make_optimizer(self) -> torch.optim.Optimizer:
+        lr, p = self.config.lr, self.model.params
+        groups = [
+            {"params": [p["means"]], "lr": lr.position_init * self.extent, "name": "means"},
+            {"params": [p["sh_dc"]], "lr": lr.sh_dc, "name": "sh_dc"},
+            {"params": [p["sh_rest"]], "lr": lr.sh_rest, "name": "sh_rest"},
+            {"params": [p["opacity_logits"]], "lr": lr.opacity, "name": "opacity_logits"},
+            {"params": [p["log_scales"]], "lr": lr.scaling, "name": "log_scales"},
+            {"params": [p["quats"]], "lr": lr.rotation, "name": "quats"},
+        ]
+        return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+
+    # -- pseudo views (the prior's hook) ------------------------------------------------------
+    def set_pseudo_views(self, views: list[PseudoView]) -> None:
+        """Replace all pseudo views (called between rounds of Alg. 1)."""
+        targets = []
+        for pv in views:
+            t = _as_image_tensor(pv.image)
+            if (t.shape[1], t.shape[0]) != (pv.camera.width, pv.camera.height):
+                raise GsgsError(f"pseudo view {pv.name!r}: image is {t.shape[1]}x{t.shape[0]} but its camera is "
+                                f"{pv.camera.width}x{pv.camera.height}")
+            targets.append(t)
+        self.pseudo_views = list(views)
+        self._pseudo_targets = targets
+
+    # -- rendering ------------------------------------------------------------------------------
+    def render(self, camera: Camera, background: torch.Tensor | None = None, sh_degree: int | None = None):
+        return render_model(self.model, camera, self.background if background is None else background,
+                            self.config.backend, sh_degree)
+
+    # -- the loop -------------------------------------------------------------------------------
+    def _next_view(self) -> int:
+        if not self._order:
+            self._order = self.np_rng.permutation(len(self.train_views)).tolist()
+        return self._order.pop()
+
+    def _step_background(self) -> torch.Tensor:
+        if self.config.random_background and self.scene.has_alpha:
+            return torch.rand(3, generator=self.torch_gen)
+        return self.background
+
+    def _target(self, i: int, background: torch.Tensor) -> torch.Tensor:
+        alpha = self._alphas[i]
+        if alpha is None or background is self.background:
+            return self._targets[i]
+        # un-composite from the scene background and re-composite on this step's background
+        a = alpha[..., None]
+        rgb_premul = self._targets[i] - self.background * (1 - a)
+        return rgb_premul + background * (1 - a)
+
+    def train_step(self) -> bool:
+        """One optimisation step; False when it was skipped for a non-finite loss or gradient."""
+        model, cfg, sched = self.model, self.config, self.schedule
+        step = self.step + 1  # 1-based like 3DGS's iteration counter
+        for group in self.optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr"] = position_lr(step, cfg.iters, cfg.lr.position_init * self.extent,
+                                          cfg.lr.position_final * self.extent)
+        if sched.is_sh_raise_step(step):
+            model.raise_sh_degree()
+
+        t0 = time.perf_counter()
+        i = self._next_view()
+        bg = self._step_background()
+        target = self._target(i, bg)
+        out = self.render(self.train_views[i].camera, bg)
+        terms = photometric_terms(out.color, target, cfg.lambda_dssim)
+        ctx = StepContext(self, step, i, out, target, bg)
+        renders = [(out, self.train_views[i].camera)]
+        if self.pseudo_views and step % max(cfg.pseudo_every, 1) == 0:
+            j = int(self.np_rng.integers(len(self.pseudo_views)))
+            pv = self.pseudo_views[j]
+            p_out = self.render(pv.camera)  # a pseudo target has the scene background baked in
+            terms.update(photometric_terms(p_out.color, self._pseudo_targets[j], cfg.lambda_dssim,
+                                           weight=pv.weight, prefix="pseudo_"))
+            ctx.pseudo, ctx.pseudo_render = pv, p_out
+            renders.append((p_out, pv.camera))
+        for name, fn in self.loss_terms.items():
+            value = fn(ctx)
+            if value is None:
+                continue
+            terms[name] = value if isinstance(value, tuple) else (1.0, value)
+        loss = total_loss(terms)
+        t1 = time.perf_counter()
+        self.phase_seconds["render"] += t1 - t0
+
+        ok = bool(torch.isfinite(loss))
+        if ok:
+            loss.backward()
+            ok = all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in model.params.values())
+        t2 = time.perf_counter()
+        self.phase_seconds["backward"] += t2 - t1
+        if not ok:
+            # never let NaN/Inf reach the parameters or Adam's moments
+            self.optimizer.zero_grad(set_to_none=True)
+            self.nan_steps_skipped += 1
+            self.step = step
+            self.last_losses = {"loss": float("nan")}
+            self.log(f"step {step}: non-finite loss or gradient, step skipped ({self.nan_steps_skipped} so far)")
+            return False
+
+        densifying = cfg.densify and step <= sched.densify_until
+        if densifying:
+            for r, cam in renders:
+                grad = r.means2d.grad if getattr(r, "means2d", None) is not None else None
+                self.stats.accumulate(grad, r.radii.detach(), cam.width, cam.height)
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+        t3 = time.perf_counter()
+        self.phase_seconds["optimise"] += t3 - t2
+
+        if densifying:
+            if sched.is_densify_step(step):
+                info = densify_and_prune(model, self.optimizer, self.stats, self.extent, cfg.densify_config,
+                                         prune_large=step > sched.opacity_reset_every, generator=self.torch_gen)
+                info["step"] = step
+                self.densify_log.append(info)
+            white = bool(torch.all(self.background == 1.0))
+            if sched.is_opacity_reset_step(step) or (white and step == sched.densify_from and step > 1):
+                reset_opacity(model, self.optimizer)
+        self.phase_seconds["densify"] += time.perf_counter() - t3
+
+        self.last_losses = {"loss": float(loss.detach()), **{k: float(v.detach()) for k, (_, v) in terms.items()}}
+        self.step = step
+        for cb in self.callbacks:
+            cb(self, step)
+        return True
+
+    def _on_signal(self, signum, frame) -> None:
+        if self._signal is not None:  # a second signal: stop now
+            raise KeyboardInterrupt
+        self._signal = signum
+
+    def train(self, until: int | None = None) -> None:
+        """Train up to step `until` (default: the configured total); see the module docstring."""
+        target = self.config.iters if until is None else min(until, self.config.iters)
+        handlers = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                handlers[sig] = signal.signal(sig, self._on_signal)
+        try:
+            while self.step < target:
+                if self.cancel_check():
+                    path = self.save_checkpoint()
+                    raise TrainingCancelled(self.step, path)
+                t0 = time.perf_counter()
+                self.train_step()
+                self.train_seconds += time.perf_counter() - t0
+                if self.progress is not None:
+                    self.progress.update(self.step, self.last_losses, num_gaussians=self.model.num_gaussians)
+                if (self.checkpoint_dir is not None and self.config.checkpoint_every > 0
+                        and self.step % self.config.checkpoint_every == 0 and self.step < self.config.iters):
+                    self.save_checkpoint()
+                if self._signal is not None:
+                    path = self.save_checkpoint()
+                    raise TrainingInterrupted(self._signal, self.step, path)
+        finally:
+            for sig, h in handlers.items():
+                signal.signal(sig, h)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def state(self) -> dict:
+        return {"format": CHECKPOINT_FORMAT, "step": self.step, "config": self.config.to_dict(),
+                "model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
+                "densify_stats": self.stats.state_dict(), "init": self.init_info.to_dict(),
+                "train_names": [v.name for v in self.train_views],
+                "rng": {"numpy": self.np_rng.bit_generator.state, "torch_gen": self.torch_gen.get_state(),
+                        "torch": torch.get_rng_state(), "order": list(self._order)},
+                "nan_steps_skipped": self.nan_steps_skipped, "train_seconds": self.train_seconds,
+                "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log}
+
+    def save_checkpoint(self) -> Path | None:
+        if self.checkpoint_dir is None:
+            return None
+        t0 = time.perf_counter()
+        path = ckpt.save_checkpoint(self.checkpoint_dir, self.step, self.state())
+        self.phase_seconds["checkpoint"] += time.perf_counter() - t0
+        return path
+
+    def _load(self, path: Path) -> None:
+        state = ckpt.load_checkpoint(path)
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise GsgsError(f"{path}: checkpoint format {state.get('format')!r} is not {CHECKPOINT_FORMAT}; "
+                            "train again without --resume")
+        names = [v.name for v in self.train_views]
+        if state["train_names"] != names:
+            raise GsgsError(f"{path}: this checkpoint was trained on views {state['train_names']}, not {names}; "
+                            "resume with the same training views or use a new --out folder")
+        saved = TrainConfig.from_dict(state["config"])
+        if saved.iters != self.config.iters:
+            self.log(f"the checkpoint's schedule has {saved.iters} iterations; keeping it (asked: {self.config.iters})")
+        self.config = saved
+        self.schedule = Schedule.scaled(saved.iters)
+        self.model = GaussianModel.from_state_dict(state["model"])
+        self.optimizer = self._make_optimizer()
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.stats = DensifyStats(self.model.num_gaussians)
+        self.stats.load_state_dict(state["densify_stats"])
+        self.init_info = InitInfo(**state["init"])
+        self.step = int(state["step"])
+        self.np_rng.bit_generator.state = state["rng"]["numpy"]
+        self.torch_gen.set_state(state["rng"]["torch_gen"])
+        torch.set_rng_state(state["rng"]["torch"])
+        self._order = list(state["rng"]["order"])
+        self.nan_steps_skipped = int(state["nan_steps_skipped"])
+        self.train_seconds = float(state["train_seconds"])
+        for k, v in state["phase_seconds"].items():
+            self.phase_seconds[k] = self.phase_seconds.get(k, 0.0) + float(v) if k == "init" else float(v)
+        self.densify_log = list(state.get("densify_log", []))
+
+
+# -- one whole run: train, export, evaluate -----------------------------------------------------
+def _append_log(path: Path | None, message: str) -> None:
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as fh:
+        fh.write(time.strftime("%Y-%m-%d %H:%M:%S ") + message + "\n")
+
+
+def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: Path, job=None,
+                     resume: bool = False, plan: dict | None = None, stream=None,
+                     setup_trainer: Callable[[Trainer], None] | None = None) -> dict:
+    """Train on `scene`, then write point_cloud.ply, renders/ of the test views and metrics.json.
+
+    `job` (a gsgs_engine.job.Job, possibly only a folder without job.json) receives
+    progress events and is polled for cancellation. Raises TrainingInterrupted /
+    TrainingCancelled after saving a checkpoint. Returns the metrics dict.
+    """
+    from gsgs_engine.io.ply import write_gaussian_ply
+    from gsgs_engine.job import write_json_atomic
+    from gsgs_engine.progress import Progress
+    from gsgs_engine.train.evaluate import evaluate_views
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log_path = job.log_path if job is not None else out_dir / "log.txt"
+    progress = Progress("train", config.iters, job=job, stream=stream)
+
+    def log(message: str) -> None:
+        progress.message(message)
+        _append_log(log_path, message)
+
+    trainer = Trainer(scene, config, checkpoint_dir=checkpoint_dir,
+                      cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
+    trainer.setup(resume=resume)
+    if setup_trainer is not None:
+        setup_trainer(trainer)
+    progress.total = trainer.config.iters
+    progress.start_step = trainer.step
+    try:
+        trainer.train()
+    finally:
+        progress.close()
+    if trainer.step >= trainer.config.iters and trainer.checkpoint_dir is not None:
+        trainer.save_checkpoint()  # a later --resume finds the run complete and only re-exports
+
+    write_gaussian_ply(out_dir / "point_cloud.ply", trainer.model.to_ply())
+    t0 = time.perf_counter()
+    test_views = scene.test if "test" in scene.splits else []
+    evaluation = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree),
+                                test_views, renders_dir=out_dir / "renders")
+    trainer.phase_seconds["evaluate"] += time.perf_counter() - t0
+    if test_views:
+        log(f"test ({len(test_views)} views): PSNR {evaluation['psnr']:.2f} SSIM {evaluation['ssim']:.4f} "
+            f"LPIPS {evaluation['lpips'] if evaluation['lpips'] is not None else 'n/a'}")
+    first = trainer.train_views[0].camera
+    full_plan = {
+        "backend": trainer.config.backend, "prior": "none", "sh_degree": trainer.config.sh_degree,
+        "init": trainer.init_info.to_dict(), "background": [float(x) for x in trainer.background],
+        "random_background": bool(trainer.config.random_background and scene.has_alpha),
+        "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
+        "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
+        "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
+        "scene_extent": trainer.extent, "lambda_dssim": trainer.config.lambda_dssim,
+        "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
+        "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "
+                            f"{trainer.config.densify_config.grad_threshold}",
+        **(plan or {}),
+    }
+    metrics = {
+        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], "lpips": evaluation["lpips"],
+        "lpips_reason": evaluation.get("lpips_reason"),
+        "train_seconds": trainer.train_seconds, "iterations": trainer.step,
+        "num_gaussians": trainer.model.num_gaussians, "nan_steps_skipped": trainer.nan_steps_skipped,
+        "final_losses": trainer.last_losses, "init": trainer.init_info.to_dict(), "plan": full_plan,
+        "phase_seconds": {k: round(v, 3) for k, v in trainer.phase_seconds.items()},
+        "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
+    }
+    if metrics["lpips"] is not None:
+        metrics.pop("lpips_reason")
+    write_json_atomic(out_dir / "metrics.json", metrics)
+    return metrics
+
+
+def config_from_settings(settings: dict) -> TrainConfig:
+    """Job settings (job.json "settings") -> TrainConfig; unknown keys are rejected by name."""
+    allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
+               "init", "random_init_points", "densify", "max_gaussians", "prior", "resolution_scale", "background"}
+    unknown = sorted(set(settings) - allowed)
+    if unknown:
+        raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
+    prior = settings.get("prior", "none")
+    if prior not in (None, "none"):
+        raise GsgsError(f"job.json: prior {prior!r} is not handled by the plain trainer; use 'none'")
+    cfg = TrainConfig()
+    for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
+                "init", "random_init_points", "densify"):
+        if key in settings:
+            setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
+    if "max_gaussians" in settings:
+        cfg.densify_config.max_gaussians = int(settings["max_gaussians"])
+    validate_config(cfg)
+    return cfg
+
+
+def validate_config(cfg: TrainConfig) -> None:
+    if cfg.iters < 1:
+        raise GsgsError(f"--iters must be at least 1 (got {cfg.iters})")
+    if not 0 <= cfg.sh_degree <= 3:
+        raise GsgsError(f"--sh-degree must be 0..3 (got {cfg.sh_degree})")
+    if cfg.checkpoint_every < 0:
+        raise GsgsError(f"--checkpoint-every must be >= 0 (got {cfg.checkpoint_every})")
+    if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
+        raise GsgsError(f"unknown backend {cfg.backend!r}; use auto, reference, cpu or cuda")
+
+
+def run_train_job(job) -> None:
+    """Task "train" / "validate" of a job folder: data and settings from job.json, results in job.result_dir.
+
+    Resumes from job.checkpoint_dir when a checkpoint is there; a cancel request saves a
+    checkpoint and leaves the status "cancelled".
+    """
+    from gsgs_engine.io import load_scene
+
+    data = job.spec.get("data") or {}
+    settings = dict(job.spec.get("settings") or {})
+    if "path" not in data:
+        raise GsgsError(f"{job.spec_path}: data.path is missing; name the scene folder to train on")
+    path = Path(data["path"])
+    if not path.is_absolute():
+        path = job.root / path
+    config = config_from_settings(settings)
+    background = tuple(settings.get("background", (1.0, 1.0, 1.0)))
+    scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
+                       train_views=data.get("train_views"), train_ids=data.get("train_ids"),
+                       resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background)
+    resume = ckpt.latest_checkpoint(job.checkpoint_dir) is not None
+    plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
+            "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
+            "job": str(job.root)}
+    try:
+        train_and_export(scene, config, job.result_dir, job.checkpoint_dir, job=job, resume=resume, plan=plan)
+    except TrainingCancelled as exc:
+        job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
+                                    "run the job again to resume")
