@@ -193,3 +193,33 @@ def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
     obj = scene.gsgs.result_object
     assert obj is not None and obj["gsgs_count"] > 0
     assert len(obj.data.vertices) == obj["gsgs_count"]
+
+
+@pytest.mark.slow
+def test_import_photos_headless_creates_posed_cameras_and_points(addon):
+    """Photos -> SfM job (real engine child) -> camera objects whose projection of the sparse points
+    lands inside their photos, each photo as background, and the point cloud object."""
+    from gsgs_blender import preferences
+    from gsgs_engine.job import Job
+
+    scene = addon
+    preferences._FALLBACK.python_path = sys.executable
+    preferences._FALLBACK.engine_root = str(REPO)
+    scene.gsgs.photos_dir = str(shared_scene("photos_santorini"))
+    scene.gsgs.max_image_size = 480
+    assert bpy.ops.gsgs.import_photos() == {"FINISHED"}  # headless: waits for the job
+    assert Job.open(bpy.path.abspath(scene.gsgs.sfm_job)).status()["state"] == "ok"
+    objs = pseudo_paths.training_camera_objects(scene)
+    assert len(objs) >= 2
+    pts_obj = scene.gsgs.points_object
+    assert pts_obj is not None and len(pts_obj.data.vertices) > 20
+    co = np.empty(len(pts_obj.data.vertices) * 3, np.float32)
+    pts_obj.data.vertices.foreach_get("co", co)
+    pts = co.reshape(-1, 3)
+    for obj in objs:
+        assert obj.data.show_background_images and obj.data.background_images[0].image is not None
+        cam = camera_convert.camera_from_object(obj, scene)
+        assert max(cam.width, cam.height) <= 480
+        uv, z = cam.project(pts)
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height)
+        assert inside.mean() > 0.5, f"{obj.name}: only {inside.mean():.0%} of the points project into its photo"
