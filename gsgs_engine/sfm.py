@@ -167,7 +167,7 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
     for entry in raw["cameras"]:
         cameras.append(Camera(R=np.array(entry["R"]), t=np.array(entry["t"]), fx=entry["fx"], fy=entry["fy"],
                               cx=entry["cx"], cy=entry["cy"], width=entry["width"], height=entry["height"],
-                              name=entry["name"]))
+                              name=entry["name"]).validate(str(out_dir / "sparse" / "0")))
         image_paths.append(out_dir / "images" / entry["name"])
     return SfmResult(out_dir=out_dir, sparse_dir=out_dir / "sparse" / "0", image_dir=out_dir / "images",
                      cameras=cameras, image_paths=image_paths,
@@ -178,7 +178,8 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
                      notes=notes)
 
 
-def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None, **options) -> tuple[np.ndarray, np.ndarray]:
+def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None,
+                            **options) -> tuple[np.ndarray, np.ndarray]:
     """Sparse points (N, 3) and colours (N, 3) in [0, 1] from views with KNOWN poses.
 
     `views`: gsgs_engine.io.scene.View objects (RGBA is composited by View.image()) or
@@ -256,10 +257,14 @@ def run_sfm_job(job) -> SfmResult:
         job.emit("sfm", stages.index(stage) if stage in stages else step, len(stages), message=message,
                  stage=stage)
 
+    try:
+        max_image_size = int(settings.get("max_image_size", 1600))
+    except (TypeError, ValueError):
+        raise GsgsError(f"{job.spec_path}: settings.max_image_size must be a whole number of pixels, "
+                        f"not {settings.get('max_image_size')!r}") from None
     result = run_sfm(photos, job.result_dir, camera_model=settings.get("camera_model", "SIMPLE_RADIAL"),
-                     single_camera=bool(settings.get("single_camera", True)),
-                     max_image_size=int(settings.get("max_image_size", 1600)), progress=report,
-                     should_cancel=job.cancel_requested)
+                     single_camera=bool(settings.get("single_camera", True)), max_image_size=max_image_size,
+                     progress=report, should_cancel=job.cancel_requested)
     if job.cancel_requested():
         raise KeyboardInterrupt
     report("export", 0, 0, "writing cameras.json and points.ply")
