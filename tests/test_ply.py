@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import importlib.util
+import json
+import subprocess
+import sys
+import textwrap
 import time
 
 import numpy as np
@@ -191,6 +196,8 @@ def test_bad_files_give_clear_errors(tmp_path):
     raw_ply(tmp_path / "mesh.ply", xyz, elements_after=[("face", 1, ["property list uchar int vertex_indices"])])
     with pytest.raises(GsgsError, match="list property 'vertex_indices'"):
         read_gaussian_ply(tmp_path / "mesh.ply")
+    raw_ply(tmp_path / "noface.ply", xyz, elements_after=[("face", 0, ["property list uchar int vertex_indices"])])
+    assert len(read_gaussian_ply(tmp_path / "noface.ply")) == 2  # an empty face element, as many tools write
     raw_ply(tmp_path / "partial.ply", xyz + [("float", "opacity", np.zeros(2)), ("float", "scale_0", np.zeros(2))])
     with pytest.raises(GsgsError, match=r"lacks f_dc_0, f_dc_1, f_dc_2, scale_1, scale_2, rot_0, rot_1, rot_2, rot_3"):
         read_gaussian_ply(tmp_path / "partial.ply")
@@ -258,3 +265,54 @@ def test_million_splats_sh3_speed(tmp_path):
           f"write {t1 - t0:.2f} s, read {t2 - t1:.2f} s")
     assert_same(splats, back)
     assert t1 - t0 < 30 and t2 - t1 < 30  # generous for a loaded 2-core CI box; a per-point loop takes minutes
+
+
+def test_reads_colmap_point_cloud_export(tmp_path):
+    # A real foreign writer: COLMAP's points3D PLY export (x y z float, red green blue uchar).
+    pycolmap = pytest.importorskip("pycolmap")
+    rec = pycolmap.Reconstruction()
+    xyz = np.array([[0.5, 1.0, 2.0], [-1.0, 0.25, 3.0], [2.0, -2.0, 4.5]])
+    rgb = np.array([[255, 0, 0], [0, 128, 0], [10, 20, 30]], np.uint8)
+    for p, c in zip(xyz, rgb):
+        rec.add_point3D(p, pycolmap.Track(), c)
+    rec.export_PLY(str(tmp_path / "points3D.ply"))
+    v = read_ply_vertices(tmp_path / "points3D.ply")
+    order = np.argsort(v["z"])  # COLMAP writes its points in its own order
+    assert np.allclose(np.stack([v["x"], v["y"], v["z"]], 1)[order], xyz)
+    assert np.array_equal(np.stack([v["red"], v["green"], v["blue"]], 1)[order], rgb)
+    g = read_gaussian_ply(tmp_path / "points3D.ply")
+    assert np.allclose(g.rgb()[order], rgb / 255.0, atol=1e-6) and "sh_dc" in g.defaulted
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+@pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs the bpy module")
+def test_blender_reads_ours_and_we_read_blenders(tmp_path):
+    # Blender's own PLY importer/exporter as an independent implementation of the format.
+    splats = random_splats(7, 1, seed=11, extra=True)
+    write_gaussian_ply(tmp_path / "ours.ply", splats)
+    script = textwrap.dedent(f"""
+        import bpy, json, numpy as np
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.ply_import(filepath={str(tmp_path / "ours.ply")!r})
+        mesh = bpy.context.selected_objects[0].data
+        out = {{"co": [list(v.co) for v in mesh.vertices]}}
+        for name in ("opacity", "f_rest_4", "rot_3", "t_center"):
+            out[name] = [d.value for d in mesh.attributes[name].data]
+        bpy.ops.wm.ply_export(filepath={str(tmp_path / "blender.ply")!r}, ascii_format=False, export_normals=False,
+                              export_colors="NONE", export_uv=False)
+        bpy.ops.wm.ply_export(filepath={str(tmp_path / "blender_ascii.ply")!r}, ascii_format=True, export_normals=False,
+                              export_colors="NONE", export_uv=False)
+        print("RESULT " + json.dumps(out))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    seen = json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+    assert np.allclose(seen["co"], splats.positions, atol=1e-6)
+    assert np.allclose(seen["opacity"], splats.opacity_logits, atol=1e-6)
+    assert np.allclose(seen["f_rest_4"], splats.sh_rest[:, 1, 1], atol=1e-6)  # channel-major: 4 = G of coefficient 1
+    assert np.allclose(seen["rot_3"], splats.quats_wxyz[:, 3], atol=1e-6)
+    assert np.allclose(seen["t_center"], splats.extra["t_center"], atol=1e-6)
+    for name in ("blender.ply", "blender_ascii.ply"):
+        v = read_ply_vertices(tmp_path / name)
+        assert np.allclose(np.stack([v["x"], v["y"], v["z"]], 1), splats.positions, atol=1e-6), name

@@ -121,6 +121,7 @@ class _Element:
     name: str
     count: int
     properties: list[tuple[str, str]]  # (name, numpy type code without byte order)
+    list_property: str | None = None  # a face list: fine only in an empty element
 
 
 def _parse_header(path: Path) -> tuple[str, list[_Element], int]:
@@ -155,9 +156,8 @@ def _parse_header(path: Path) -> tuple[str, list[_Element], int]:
                     raise GsgsError(f"{path}: PLY header has a property before any element; the header is malformed")
                 element = elements[-1]
                 if len(words) >= 2 and words[1] == "list":
-                    raise GsgsError(
-                        f"{path}: element {element.name!r} has list property {words[-1]!r} (a mesh's faces); gsgs reads "
-                        "point clouds and splats only: export the vertices alone (e.g. as a point cloud) and try again")
+                    element.list_property = words[-1]
+                    continue
                 if len(words) != 3 or words[1] not in _PLY_TO_NUMPY:
                     raise GsgsError(f"{path}: malformed or unknown PLY property {line.strip()!r}; expected 'property TYPE NAME' with a PLY scalar type")
                 if any(name == words[2] for name, _ in element.properties):
@@ -167,6 +167,12 @@ def _parse_header(path: Path) -> tuple[str, list[_Element], int]:
                 raise GsgsError(f"{path}: unexpected PLY header line {line.strip()!r}")
         if fmt is None:
             raise GsgsError(f"{path}: the PLY header has no 'format' line; the header is malformed")
+        for element in elements:
+            # Point-cloud writers often declare an empty face element; a non-empty one is a mesh.
+            if element.list_property is not None and element.count > 0:
+                raise GsgsError(
+                    f"{path}: element {element.name!r} has list property {element.list_property!r} (a mesh's faces); "
+                    "gsgs reads point clouds and splats only: export the vertices alone (as a point cloud) and try again")
         return fmt, elements, f.tell()
 
 
