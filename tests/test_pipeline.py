@@ -1,0 +1,97 @@
+"""Algorithm 1 end to end on tiny scenes: plan resolution, rounds on disk, prior loss terms."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.pipeline import PriorConfig, resolve_prior_plan, round_steps, run_prior_training
+from gsgs_engine.train.trainer import TrainConfig
+from test_trainer import make_scene
+
+
+def test_plan_auto_without_weights_is_warp_inpaint_with_sparse_depth():
+    plan = resolve_prior_plan(PriorConfig(prior="auto"), 8)
+    assert plan["generator"] == "warp-inpaint" and plan["depth_source"] == "sparse"
+    assert "no diffusion weights" in plan["generator_reason"]
+
+
+def test_plan_with_diffusion_folders_picks_diffusion(tmp_path):
+    (tmp_path / "sd").mkdir()
+    (tmp_path / "ad").mkdir()
+    cfg = PriorConfig(prior="auto", diffusion_model=str(tmp_path / "sd"), depth_adapter=str(tmp_path / "ad"))
+    plan = resolve_prior_plan(cfg, 3)
+    assert plan["generator"] == "diffusion" and plan["geo_loss"] is True
+    assert resolve_prior_plan(PriorConfig(prior="auto", diffusion_model=str(tmp_path / "sd"), depth_adapter=str(tmp_path / "ad"),
+                                          geo_loss=False), 3)["geo_loss"] is False
+
+
+def test_plan_switches_and_errors():
+    assert resolve_prior_plan(PriorConfig(prior="none"), 3)["generator"] is None
+    assert resolve_prior_plan(PriorConfig(prior="warp", depth_reg=False), 3)["depth_source"] is None
+    depth_only = resolve_prior_plan(PriorConfig(prior="depth"), 3)
+    assert depth_only["generator"] is None and depth_only["depth_source"] == "sparse" and depth_only["pseudo_views"] == 0
+    with pytest.raises(GsgsError, match="diffusion"):
+        resolve_prior_plan(PriorConfig(prior="diffusion"), 3)
+    with pytest.raises(GsgsError, match="depth source"):
+        resolve_prior_plan(PriorConfig(prior="depth", depth_source="none"), 3)
+    with pytest.raises(GsgsError, match="choose one of"):
+        resolve_prior_plan(PriorConfig(prior="magic"), 3)
+
+
+def test_round_steps_follow_the_warmup():
+    assert round_steps(1000, 0.3, 3) == [300, 533, 766]
+    assert round_steps(10, 0.5, 0) == []
+    assert all(0 < s < 5 for s in round_steps(5, 0.3, 4))
+
+
+def test_warp_prior_runs_rounds_and_adds_terms(tmp_path):
+    scene = make_scene(n_train=3, n_test=1)
+    cfg = TrainConfig(iters=40, backend="reference", init="points", sh_degree=0, checkpoint_every=0)
+    prior = PriorConfig(prior="warp", num_pseudo=3, rounds=2, warmup_fraction=0.5)
+    metrics = run_prior_training(scene, cfg, prior, tmp_path / "out", tmp_path / "ckpt")
+    plan = metrics["plan"]["prior_plan"]
+    assert plan["generator"] == "warp-inpaint" and plan["depth_source"] == "sparse" and plan["round_steps"] == [20, 30]
+    assert len(metrics["prior_rounds"]) == 2
+    for k in (0, 1):
+        folder = tmp_path / "out" / "pseudo" / f"round_{k}"
+        assert len(list(folder.glob("pseudo_*_render.png"))) == 3
+        info = json.loads((folder / "round.json").read_text())
+        assert len(info["views"]) == 3 and "nearest_train" in info["views"][0]
+    assert "pseudo_l1" in metrics["final_losses"] and "depth_reg" in metrics["final_losses"]
+    assert metrics["nan_steps_skipped"] == 0 and metrics["iterations"] == 40
+    assert metrics["phase_seconds"]["prior_render"] > 0
+    saved = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert saved["plan"]["prior_plan"]["prior"] == "warp"
+
+
+def test_depth_only_prior_regularises_without_pseudo_views(tmp_path):
+    scene = make_scene(n_train=3, n_test=1)
+    cfg = TrainConfig(iters=12, backend="reference", init="points", sh_degree=0, checkpoint_every=0)
+    metrics = run_prior_training(scene, cfg, PriorConfig(prior="depth"), tmp_path / "o", tmp_path / "c")
+    assert "depth_reg" in metrics["final_losses"] and "pseudo_l1" not in metrics["final_losses"]
+    assert not (tmp_path / "o" / "pseudo").exists()
+    assert torch.isfinite(torch.tensor(metrics["final_losses"]["depth_reg"]))
+
+
+@pytest.mark.slow
+def test_diffusion_prior_end_to_end_with_tiny_models(tmp_path):
+    pytest.importorskip("diffusers")
+    from gsgs_engine.priors.tiny_diffusion import save_tiny_diffusion
+
+    sd, adapter = save_tiny_diffusion(tmp_path / "models")
+    scene = make_scene(n_train=2, n_test=1)
+    cfg = TrainConfig(iters=10, backend="reference", init="points", sh_degree=0, checkpoint_every=0)
+    prior = PriorConfig(prior="auto", diffusion_model=str(sd), depth_adapter=str(adapter), num_pseudo=2, rounds=1,
+                        warmup_fraction=0.5, device="cpu",
+                        diffusion={"resolution": 32, "steps": 2, "lora_steps": 2})
+    metrics = run_prior_training(scene, cfg, prior, tmp_path / "out", tmp_path / "ckpt")
+    plan = metrics["plan"]["prior_plan"]
+    assert plan["prior"] == "auto:diffusion" and plan["geo_loss"] is True
+    (rnd,) = metrics["prior_rounds"]
+    assert rnd["lora"]["geo"] >= 0 and rnd["lora"]["ldm"] > 0
+    assert (tmp_path / "out" / "pseudo" / "round_0" / "lora.safetensors").is_file()
+    assert metrics["phase_seconds"]["prior_adapt"] > 0 and metrics["nan_steps_skipped"] == 0
