@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import zlib  # noqa: F401  -- before anything loads pycolmap (see gsgs_engine.sfm's docstring)
+
 import numpy as np
 import pytest
 
@@ -166,6 +168,13 @@ def test_santorini_registers_all_three_photos_via_the_command(tmp_path):
     report = json.loads((out / "sfm_report.json").read_text())
     assert report["registered"] == 3 and report["num_points"] > 100
     assert report["mean_reprojection_error"] < 2.0
+    # The project's COLMAP loader reads the folder as it is.
+    from gsgs_engine.io import load_scene
+
+    scene = load_scene(out, format="colmap")
+    assert sorted(v.name for v in scene.views) == ["frame_00", "frame_06", "frame_12"]
+    assert len(scene.points) == report["num_points"]
+    assert all(abs(v.camera.fx - fx) < 1e-6 and v.camera.width == w for v in scene.views)
 
 
 @pytest.mark.slow
