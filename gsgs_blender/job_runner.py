@@ -313,17 +313,24 @@ def _redraw() -> None:
                 area.tag_redraw()
 
 
-def wait_for(run: JobRun, timeout: float | None = None, echo: bool = True) -> str:
-    """Headless: block until `run` finishes, printing progress lines; then fire callbacks."""
-    def show(events: list[dict]) -> None:
-        if not echo:
-            return
-        ev = events[-1]
-        total = f"/{ev['total']}" if ev.get("total") else ""
-        print(f"gsgs [{ev.get('phase', '')}] {ev.get('step', 0)}{total} {format_losses(ev.get('losses'))} "
-              f"{ev.get('message', '')}".rstrip(), flush=True)
+def wait_for(run: JobRun, timeout: float | None = None, echo: bool = True, echo_every_s: float = 2.0) -> str:
+    """Headless: block until `run` finishes, printing a progress line at most every `echo_every_s`
+    seconds (and at every phase change); then fire the on_finish callbacks."""
+    last = {"time": 0.0, "phase": None}
 
-    state = run.wait(timeout=timeout, on_events=show)
+    def show(events: list[dict]) -> None:
+        ev = events[-1]
+        now = time.monotonic()
+        if not echo or (ev.get("phase") == last["phase"] and now - last["time"] < echo_every_s
+                        and ev.get("step") != ev.get("total")):
+            return
+        last.update(time=now, phase=ev.get("phase"))
+        total = f"/{ev['total']}" if ev.get("total") else ""
+        eta = format_eta(ev.get("eta_s"))
+        print(f"gsgs [{ev.get('phase', '')}] {ev.get('step', 0)}{total} {format_losses(ev.get('losses'))} "
+              f"{ev.get('message', '')}{'  ETA ' + eta if eta else ''}".rstrip(), flush=True)
+
+    run.wait(timeout=timeout, on_events=show)
     if not run.finished_handled:
         _finish(run)
-    return run.state if run.finished else state
+    return run.state

@@ -223,3 +223,104 @@ def test_import_photos_headless_creates_posed_cameras_and_points(addon):
         uv, z = cam.project(pts)
         inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height)
         assert inside.mean() > 0.5, f"{obj.name}: only {inside.mean():.0%} of the points project into its photo"
+
+
+# -- the extension package -----------------------------------------------------------------------
+
+def _build(tmp_path) -> Path:
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        import build_extension
+    finally:
+        sys.path.pop(0)
+    return build_extension.build(tmp_path / "dist")
+
+
+def test_manifest_fields():
+    import tomllib
+
+    m = tomllib.loads((REPO / "blender_manifest.toml").read_text())
+    assert m["schema_version"] == "1.0.0" and m["id"] == "gsgs" and m["type"] == "add-on"
+    assert m["blender_version_min"] == "4.2.0" and m["license"] == ["SPDX:GPL-3.0-or-later"]
+    assert m["name"] and m["maintainer"] and m["tagline"]
+    assert len(m["tagline"]) <= 64 and m["tagline"][-1].isalnum()  # Blender rejects trailing punctuation
+    assert m["permissions"]["files"] and not m["permissions"]["files"].endswith(".")
+    import gsgs_engine
+
+    assert m["version"] == gsgs_engine.__version__
+    assert m["wheels"] == [f"./wheels/gsgs_engine_core-{gsgs_engine.__version__}-py3-none-any.whl"]
+
+
+def test_extension_zip_contents(tmp_path):
+    import base64
+    import hashlib
+    import io
+    import zipfile
+
+    path = _build(tmp_path)
+    with zipfile.ZipFile(path) as zf:
+        names = set(zf.namelist())
+        wheel_name = next(n for n in names if n.endswith(".whl"))
+        wheel = zipfile.ZipFile(io.BytesIO(zf.read(wheel_name)))
+    assert "blender_manifest.toml" in names and "__init__.py" in names
+    assert {p.name for p in ADDON_DIR.glob("*.py")} <= names
+    assert not any(n.startswith("gsgs_blender/") or "__pycache__" in n for n in names)
+    wnames = set(wheel.namelist())
+    needed = {"gsgs_engine/__init__.py", "gsgs_engine/cameras.py", "gsgs_engine/job.py",
+              "gsgs_engine/io/__init__.py", "gsgs_engine/io/scene.py", "gsgs_engine/io/ply.py"}
+    assert needed <= wnames
+    assert not any(n.startswith(("gsgs_engine/render", "gsgs_engine/train", "gsgs_engine/priors")) for n in wnames)
+    # RECORD hashes match the files, as installers check.
+    record = next(n for n in wnames if n.endswith("RECORD"))
+    for line in wheel.read(record).decode().splitlines():
+        name, digest, size = line.split(",")
+        if digest:
+            data = wheel.read(name)
+            assert digest == "sha256=" + base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+            assert int(size) == len(data)
+    # Nothing in the wheel imports a heavy package at module level.
+    for name in wnames:
+        if name.endswith(".py"):
+            tree = ast.parse(wheel.read(name))
+            for node in tree.body:
+                mods = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+                assert not any(m.split(".")[0] in {"torch", "cv2", "pycolmap", "bpy"} for m in mods), name
+
+
+def test_extension_zip_passes_blenders_validator(tmp_path):
+    import subprocess
+
+    cli = Path(bpy.utils.system_resource("SCRIPTS")) / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"
+    if not cli.is_file():
+        pytest.skip(f"Blender's extension tool not found at {cli}")
+    path = _build(tmp_path)
+    out = subprocess.run([sys.executable, str(cli), "validate", str(path)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "Success" in out.stdout, out.stdout + out.stderr
+
+
+@pytest.mark.slow
+def test_extension_registers_from_the_zip_alone(tmp_path):
+    """Unpacked as Blender installs it (package dir + wheel in site-packages), without the repo on the path."""
+    import subprocess
+    import zipfile
+
+    path = _build(tmp_path)
+    pkg, site = tmp_path / "ext" / "gsgs", tmp_path / "site"
+    with zipfile.ZipFile(path) as zf:
+        zf.extractall(pkg)
+        wheel = next(n for n in zf.namelist() if n.endswith(".whl"))
+    with zipfile.ZipFile(pkg / wheel) as wf:
+        wf.extractall(site)
+    code = (
+        "import sys, bpy, importlib\n"
+        "sys.path[:0] = [sys.argv[1], sys.argv[2]]\n"
+        "addon = importlib.import_module('gsgs')\n"
+        "import gsgs_engine\n"
+        "assert gsgs_engine.__file__.startswith(sys.argv[1]), gsgs_engine.__file__\n"
+        "for _ in range(2):\n"
+        "    addon.register(); assert bpy.context.scene.gsgs.pseudo_count == 16; addon.unregister()\n"
+        "print('REGISTERED-FROM-ZIP')\n")
+    out = subprocess.run([sys.executable, "-c", code, str(site), str(tmp_path / "ext")], capture_output=True,
+                         text=True, timeout=120, cwd=tmp_path, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)})
+    assert "REGISTERED-FROM-ZIP" in out.stdout, out.stdout[-2000:] + out.stderr[-2000:]
