@@ -343,3 +343,40 @@ def test_demo_scene_is_deterministic_textured_and_framed():
     train_c = np.array([c.matrix_world.translation for c in demo.train_cameras])
     test_c = np.array([c.matrix_world.translation for c in demo.test_cameras])
     assert np.linalg.norm(train_c[:, None] - test_c[None], axis=-1).min() > 0.1
+
+
+# -- scripts/render_validation.py ----------------------------------------------------------------
+def _load_script(name: str):
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"_gsgs_script_{name}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_render_validation_script_with_the_bpy_module(tmp_path):
+    rv = _load_script("render_validation")
+    assert rv.script_argv(["blender", "--background", "s.blend", "--python", "x.py", "--", "--out", "D"]) == ["--out", "D"]
+    assert rv.script_argv(["x.py", "--blend", "s.blend", "--out", "D"]) == ["--blend", "s.blend", "--out", "D"]
+    scene = empty_scene()
+    add_mesh(scene, "cube", lambda bm: bmesh.ops.create_cube(bm, size=1.0), location=(2.0, 1.0, 0.5),
+             emission=(0.2, 0.6, 0.9))
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "val"
+    code = rv.main(["x.py", "--blend", str(blend), "--out", str(out), "--views", "3", "--test-views", "2",
+                    "--resolution", "16", "--samples", "1", "--depth"])
+    assert code == 0
+    train = json.loads((out / "transforms_train.json").read_text())
+    test = json.loads((out / "transforms_test.json").read_text())
+    assert len(train["frames"]) == 3 and len(test["frames"]) == 2 and train["w"] == 16
+    assert all((out / f["depth_file_path"]).is_file() for f in train["frames"])
+    # the rig framed the cube: it is in the middle of every image, and the cameras were cleaned up
+    for f in train["frames"]:
+        alpha = load_png_rgba(out / (f["file_path"] + ".png"))[..., 3]
+        assert alpha[8, 8] == pytest.approx(1.0) and alpha[0, 0] == 0.0
+    assert not [o for o in bpy.data.objects if o.type == "CAMERA"]
+    assert rv.main(["x.py", "--blend", str(tmp_path / "missing.blend"), "--out", str(out)]) == 2
+    assert rv.main(["x.py", "--blend", str(blend), "--out", str(out), "--train-collection", "nope"]) == 2
