@@ -138,7 +138,7 @@ def test_single_isotropic_gaussian_matches_analytic_profile():
     yy, xx = torch.meshgrid(torch.arange(64) + 0.5, torch.arange(64) + 0.5, indexing="ij")
     analytic = opacity * torch.exp(-0.5 * ((xx - 32.5) ** 2 + (yy - 32.5) ** 2) / sigma_px ** 2)
     r = int(out.radii[0])
-    assert r == math.ceil(3 * sigma_px)
+    assert r in (12, 13)  # ceil(3 sigma) with 3 sigma = 12 exactly: float32 rounding may tip it up
     inside = ((xx - 32.5).abs() <= r - 1) & ((yy - 32.5).abs() <= r - 1) & (analytic >= 1 / 255)
     torch.testing.assert_close(a[inside], analytic[inside], rtol=1e-4, atol=1e-6)
     torch.testing.assert_close(out.color, color_rgb * a[..., None], rtol=1e-4, atol=1e-6)
@@ -190,7 +190,9 @@ def _tiny_scene():
     return cam, [means, quats, scales, opacities, sh]
 
 
-def test_gradcheck_full_pipeline_float64():
+@pytest.mark.parametrize("fast_mode", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_gradcheck_full_pipeline_float64(fast_mode):
+    # fast_mode checks random Jacobian-vector products (seconds); the full Jacobian takes ~20 s.
     cam, inputs = _tiny_scene()
     inputs = [x.clone().requires_grad_() for x in inputs]
     bg = torch.tensor([0.3, 0.6, 0.1], dtype=torch.float64, requires_grad=True)
@@ -202,7 +204,7 @@ def test_gradcheck_full_pipeline_float64():
     with torch.no_grad():
         color, _, alpha = f(*inputs, bg)
         assert alpha.min() > 0.2 and alpha.max() < 0.95 and color.min() > 0  # away from the kinks
-    assert torch.autograd.gradcheck(f, (*inputs, bg), eps=1e-6, atol=1e-6, rtol=1e-4)
+    assert torch.autograd.gradcheck(f, (*inputs, bg), eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=fast_mode)
 
 
 def test_gradcheck_rasterizer_inputs_float64():

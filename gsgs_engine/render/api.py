@@ -94,6 +94,10 @@ def select_backend(backend: str, device: torch.device, dtype: torch.dtype | None
             raise GsgsError("rasteriser backend 'cuda' (gsplat) supports float32 only; use backend='reference' for float64")
         return backend
     if backend == "cpu":
+        if device.type != "cpu":
+            raise GsgsError(f"rasteriser backend 'cpu' needs CPU tensors (got {device}); use backend='auto'")
+        if dtype == torch.float64:
+            raise GsgsError("rasteriser backend 'cpu' (compiled kernel) is float32 only; use backend='reference' for float64")
         ok, reason = cpu_status()
         if not ok:
             raise GsgsError(f"rasteriser backend 'cpu' unavailable: {reason}; run `gsgs build-ext` or use backend='reference'")
@@ -104,6 +108,8 @@ def select_backend(backend: str, device: torch.device, dtype: torch.dtype | None
         if ok and dtype != torch.float64:
             return "cuda"
         return "reference"  # the compiled kernel is CPU-only; torch ops run on the GPU
+    if dtype == torch.float64:
+        return "reference"  # float64 is for gradient checks; the compiled kernel is float32 only
     ok, reason = cpu_status()
     if ok:
         return "cpu"

@@ -47,18 +47,27 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     ], dim=-1).reshape(quats.shape[:-1] + (3, 3))
 
 
+def scaled_rotation(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """M = R S [N, 3, 3], the factor of the covariance in eq. 2 (Sigma = M M^T)."""
+    return quat_to_rotmat(quats) * scales[..., None, :]  # scale the columns of R
+
+
 def covariance_3d(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
     """Sigma = R S S^T R^T (eq. 2) from quaternions [N, 4] and linear scales [N, 3]."""
-    M = quat_to_rotmat(quats) * scales[..., None, :]  # R S: scale the columns of R
+    M = scaled_rotation(quats, scales)
     return M @ M.transpose(-1, -2)
 
 
-def ewa_covariance_2d(cov3d: torch.Tensor, p_cam: torch.Tensor, W: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """2D image-space covariance J W Sigma W^T J^T plus the 0.3 px^2 dilation -> [N, 2, 2].
+def ewa_covariance_2d(quats: torch.Tensor, scales: torch.Tensor, p_cam: torch.Tensor, W: torch.Tensor,
+                      camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+    """2D covariance J W Sigma W^T J^T + 0.3 I (Sigma from eq. 2) -> ([N, 2, 2], its determinant [N]).
 
     J is the Jacobian of the perspective projection at the (frustum-clamped) camera-space
     mean; clamping tx/tz to 1.3x the image extent keeps Gaussians far outside the view from
     exploding into huge ellipses (3DGS does the same; gradients stop at the clamp).
+    The determinant is not a*c - b^2, which cancels catastrophically for needle-like
+    Gaussians: with U = J W R S the undilated covariance is U U^T, whose determinant is the
+    sum of squared 2x2 minors of U (Cauchy-Binet), so det = minors + 0.3 trace + 0.09 > 0.
     """
     x, y, z = p_cam.unbind(-1)
     lim_left = FRUSTUM_SLACK * camera.cx / camera.fx
@@ -72,9 +81,14 @@ def ewa_covariance_2d(cov3d: torch.Tensor, p_cam: torch.Tensor, W: torch.Tensor,
         camera.fx / z, zero, -camera.fx * txtz / z,
         zero, camera.fy / z, -camera.fy * tytz / z,
     ], dim=-1).reshape(z.shape + (2, 3))
-    T = J @ W  # [N, 2, 3]
-    cov2d = T @ cov3d @ T.transpose(-1, -2)
-    return cov2d + LOW_PASS_DILATION * torch.eye(2, dtype=cov2d.dtype, device=cov2d.device)
+    U = J @ W @ scaled_rotation(quats, scales)  # [N, 2, 3]; J W Sigma W^T J^T = U U^T (eq. 2)
+    cov2d = U @ U.transpose(-1, -2)
+    minors = (U[:, 0, 0] * U[:, 1, 1] - U[:, 0, 1] * U[:, 1, 0]) ** 2 \
+        + (U[:, 0, 0] * U[:, 1, 2] - U[:, 0, 2] * U[:, 1, 0]) ** 2 \
+        + (U[:, 0, 1] * U[:, 1, 2] - U[:, 0, 2] * U[:, 1, 1]) ** 2
+    det = minors + LOW_PASS_DILATION * (cov2d[:, 0, 0] + cov2d[:, 1, 1]) + LOW_PASS_DILATION ** 2
+    dilated = cov2d + LOW_PASS_DILATION * torch.eye(2, dtype=cov2d.dtype, device=cov2d.device)
+    return dilated, det
 
 
 def view_colors(means: torch.Tensor, sh: torch.Tensor, sh_degree: int, camera_center: torch.Tensor) -> torch.Tensor:
@@ -101,9 +115,8 @@ def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Te
     p_safe = torch.where(in_range[:, None], p_cam, safe_point)
     x, y, z_safe = p_safe.unbind(-1)
 
-    cov2d = ewa_covariance_2d(covariance_3d(quats, scales), p_safe, R, camera)
+    cov2d, det = ewa_covariance_2d(quats, scales, p_safe, R, camera)
     a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
-    det = a * c - b * b
     ok = in_range & (det > 0) & torch.isfinite(det)
     det_safe = torch.where(ok, det, torch.ones_like(det))
     a_s = torch.where(ok, a, torch.ones_like(a))
@@ -114,11 +127,10 @@ def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Te
     means2d = torch.stack([camera.fx * x / z_safe + camera.cx, camera.fy * y / z_safe + camera.cy], dim=-1)
 
     with torch.no_grad():
-        # Radius from the largest eigenvalue; float64 so huge covariances do not lose the
-        # small eigenvalue to cancellation.
-        a64, b64, c64 = a_s.double(), b_s.double(), c_s.double()
+        # Radius from the largest eigenvalue (no gradient: radii are integers).
+        a64, c64 = a_s.double(), c_s.double()
         mid = 0.5 * (a64 + c64)
-        lam_max = mid + torch.sqrt((mid * mid - (a64 * c64 - b64 * b64)).clamp_min(0.0))
+        lam_max = mid + torch.sqrt((mid * mid - det_safe.double()).clamp_min(0.0))
         radius = torch.ceil(3.0 * torch.sqrt(lam_max.clamp_min(0.0)))
         m = means2d.detach().double()
         on_screen = ((m[:, 0] + radius > 0) & (m[:, 0] - radius < camera.width)
