@@ -29,6 +29,10 @@ def find_model(root: Path) -> Path | None:
 
 
 def _read(model: Path):
+    # zlib must be loaded before pycolmap: otherwise a later zlib write in this process
+    # (cv2.imwrite of a PNG, Pillow, np.savez_compressed) aborts with a double free.
+    import zlib  # noqa: F401
+
     import pycolmap
 
     try:
