@@ -29,7 +29,7 @@ FIELDS = ("positions", "opacity_logits", "log_scales", "quats_wxyz", "sh_dc", "s
 def random_splats(n: int, degree: int, seed: int = 0, extra: bool = False) -> GaussianPly:
     rng = np.random.default_rng(seed)
     k1 = (degree + 1) ** 2 - 1
-    f = lambda *shape: rng.normal(size=shape).astype(np.float32)  # noqa: E731
+    f = lambda *shape: rng.standard_normal(shape, dtype=np.float32)  # noqa: E731
     ex = {}
     if extra:
         ex = {"t_center": f(n), "motion_0": rng.normal(size=n), "label": rng.integers(0, 255, n).astype(np.uint8)}
