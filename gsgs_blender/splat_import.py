@@ -30,14 +30,15 @@ def sigmoid(x: np.ndarray) -> np.ndarray:
 def splat_arrays(g) -> dict[str, tuple[str, np.ndarray]]:
     """GaussianPly -> {attribute name: (Blender data type, flat float32 array)} (no bpy needed)."""
     n = g.positions.shape[0]
-    quats = np.asarray(g.quats_wxyz, dtype=np.float64)
+    # float32 throughout: Blender stores float32, and a million splats stay quick.
+    quats = np.asarray(g.quats_wxyz, dtype=np.float32)
     norm = np.linalg.norm(quats, axis=1, keepdims=True)
-    quats = np.where(norm > 1e-12, quats / np.maximum(norm, 1e-12), np.array([1.0, 0.0, 0.0, 0.0]))
-    rgb = np.clip(0.5 + SH_C0 * np.asarray(g.sh_dc, dtype=np.float64), 0.0, 1.0)
-    rgba = np.concatenate([rgb, np.ones((n, 1))], axis=1)
+    quats = np.where(norm > 1e-12, quats / np.maximum(norm, 1e-12), np.array([1, 0, 0, 0], np.float32))
+    rgb = np.clip(0.5 + np.float32(SH_C0) * np.asarray(g.sh_dc, dtype=np.float32), 0.0, 1.0)
+    rgba = np.concatenate([rgb, np.ones((n, 1), np.float32)], axis=1)
     out = {
-        "opacity": ("FLOAT", sigmoid(np.asarray(g.opacity_logits, dtype=np.float64))),
-        "scale": ("FLOAT_VECTOR", np.exp(np.asarray(g.log_scales, dtype=np.float64))),
+        "opacity": ("FLOAT", sigmoid(np.asarray(g.opacity_logits, dtype=np.float32))),
+        "scale": ("FLOAT_VECTOR", np.exp(np.asarray(g.log_scales, dtype=np.float32))),
         "rotation": ("QUATERNION", quats),
         "color": ("FLOAT_COLOR", rgba),
         "sh_dc": ("FLOAT_VECTOR", np.asarray(g.sh_dc)),

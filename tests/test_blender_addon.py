@@ -324,3 +324,69 @@ def test_extension_registers_from_the_zip_alone(tmp_path):
     out = subprocess.run([sys.executable, "-c", code, str(site), str(tmp_path / "ext")], capture_output=True,
                          text=True, timeout=120, cwd=tmp_path, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)})
     assert "REGISTERED-FROM-ZIP" in out.stdout, out.stdout[-2000:] + out.stderr[-2000:]
+
+
+# -- the sidebar drawing code (no window in tests: a recording stand-in for UILayout) -------------
+
+class _Layout:
+    """Records UILayout calls; checks the method names exist on the real bpy.types.UILayout."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def __getattr__(self, name):
+        if name not in bpy.types.UILayout.bl_rna.functions:
+            raise AttributeError(f"UILayout has no {name}()")
+
+        def call(*args, **kwargs):
+            self.log.append((name, args, kwargs))
+            return _Layout(self.log)
+        return call
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+
+
+def _draw_all(context) -> list:
+    log = []
+    for cls in panels.CLASSES:
+        cls.draw(type("P", (), {"layout": _Layout(log)})(), context)
+    return log
+
+
+def test_panels_draw_job_states(addon, tmp_path):
+    from gsgs_engine.job import Job
+
+    assert "progress" in bpy.types.UILayout.bl_rna.functions  # layout.progress exists since Blender 4.0
+    scene = addon
+    assert _draw_all(bpy.context)  # nothing set up yet
+    job = Job.create(tmp_path / "train", "train", data={"path": "x"})
+    job.emit("train", 250, 1000, losses={"l1": 0.05, "psnr": 24.5}, eta_s=75)
+    job.set_status("running", "training")
+    scene.gsgs.train_job = str(job.root)
+    log = _draw_all(bpy.context)
+    bars = [kw for name, _, kw in log if name == "progress"]
+    assert bars and bars[0]["factor"] == pytest.approx(0.25) and "250/1000" in bars[0]["text"]
+    labels = [kw.get("text", "") for name, _, kw in log if name == "label"]
+    assert "l1 0.05, psnr 24.5" in labels and "ETA 1:15" in labels
+    assert any(name == "operator" and args[0] == "gsgs.cancel_job" for name, args, _ in log)
+
+    job_runner.RUNS.clear()
+    (job.root / "log.txt").write_text("step 1\nTraceback (most recent call last):\nValueError: bad thing\n")
+    job.set_status("error", "ValueError: bad thing (see log.txt)")
+    log = _draw_all(bpy.context)
+    labels = [kw.get("text", "") for name, _, kw in log if name == "label"]
+    assert "ValueError: bad thing (see log.txt)" in labels and "ValueError: bad thing" in labels
+    assert any(name == "operator" and args[0] == "gsgs.resume_job" for name, args, _ in log)
+
+
+def test_frustum_lines_reach_the_image_corners():
+    from gsgs_engine.cameras import Camera, look_at
+
+    R, t = look_at(np.array([3.0, -2.0, 1.0]), np.zeros(3))
+    cam = Camera(R=R, t=t, fx=300, fy=320, cx=170, cy=110, width=320, height=240)
+    segs = pseudo_paths.frustum_lines(cam, depth=0.7)
+    corners = segs[[1, 3, 5, 7]]
+    uv, z = cam.project(corners)
+    np.testing.assert_allclose(uv, [[0, 0], [320, 0], [320, 240], [0, 240]], atol=1e-3)
+    np.testing.assert_allclose(z, 0.7, atol=1e-5)
