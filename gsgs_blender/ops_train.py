@@ -11,7 +11,7 @@ from gsgs_engine.job import Job
 
 from . import camera_convert, pseudo_paths
 from .operators import job_run, launch, new_job_dir, report_error, scene_callback
-from .preferences import get_prefs, models_of
+from .preferences import get_prefs, prior_settings
 
 JOB_KINDS = [("sfm", "Camera Solve", ""), ("train", "Training", ""), ("validate", "Validation", "")]
 
@@ -54,11 +54,9 @@ def train_spec(context) -> dict:
     prefs = get_prefs(context)
     return {
         "data": {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]},
-        # Only keys the trainer knows; the generative pipeline's options travel in "pipeline".
-        "settings": {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale)},
+        "settings": {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
+                     **prior_settings(prefs, s.generator, s.rounds)},
         "pseudo_poses": pseudo_paths.poses_from_json(s.pseudo_poses),
-        "pipeline": {"rounds": int(s.rounds), "generator": s.generator, "device": prefs.device},
-        "models": models_of(prefs),
         "blender": {"file": bpy.data.filepath, "scene": scene.name},
     }
 
@@ -136,10 +134,8 @@ class GSGS_OT_validate(bpy.types.Operator):
         try:
             job = Job.create(new_job_dir(context, "validate"), "validate",
                              data={"path": str(source), "format": "auto", "train_views": int(s.validate_views)},
-                             settings={"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale)},
-                             pipeline={"rounds": int(s.rounds), "generator": s.generator,
-                                       "device": get_prefs(context).device},
-                             models=models_of(get_prefs(context)))
+                             settings={"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
+                                       **prior_settings(get_prefs(context), s.generator, s.rounds)})
             s.validate_job = str(job.root)
             run = launch(context, job)
         except GsgsError as exc:

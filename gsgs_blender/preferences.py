@@ -101,10 +101,18 @@ def get_prefs(context=None):
     return addon.preferences if addon is not None and addon.preferences is not None else _FALLBACK
 
 
-def models_of(prefs) -> dict:
-    return {"diffusion": bpy.path.abspath(prefs.diffusion_dir) or None,
-            "depth_adapter": bpy.path.abspath(prefs.depth_adapter_dir) or None,
-            "depth_estimator": bpy.path.abspath(prefs.depth_estimator_dir) or None}
+def prior_settings(prefs, generator: str, rounds: int) -> dict:
+    """job.json settings of the generative prior (the engine's PriorConfig field names)."""
+    if generator == "none":
+        return {"prior": "none"}
+    d = {"rounds": int(rounds), "device": prefs.device}
+    if prefs.diffusion_dir:
+        d["diffusion_model"] = bpy.path.abspath(prefs.diffusion_dir)
+    if prefs.depth_adapter_dir:
+        d["depth_adapter"] = bpy.path.abspath(prefs.depth_adapter_dir)
+    if prefs.depth_estimator_dir:
+        d["depth_source"] = bpy.path.abspath(prefs.depth_estimator_dir)
+    return {"prior": generator, "prior_settings": d}
 
 
 def jobs_root(context=None) -> Path:
@@ -188,9 +196,12 @@ class GSGS_OT_check_engine(bpy.types.Operator):
 
 ORIENTATIONS = [("LOOK_AT", "Look at Centre", "every pseudo camera looks at the scene centre"),
                 ("SLERP", "Interpolate", "orientation slerped between the two nearest training cameras")]
+# The engine's prior choices (gsgs_engine.pipeline.PRIOR_CHOICES), sent as settings["prior"].
 GENERATORS = [("auto", "Auto", "diffusion when the model folders are set, else the weights-free warp prior"),
               ("diffusion", "Diffusion", "depth-conditioned latent diffusion with LoRA adaptation (needs models)"),
-              ("warp", "Warp + Inpaint", "weights-free: warp training photos with rendered depth, inpaint holes")]
+              ("warp", "Warp + Inpaint", "weights-free: warp training photos with rendered depth, inpaint holes"),
+              ("depth", "Depth Only", "no generated views; only the depth regulariser (eq. 8-10)"),
+              ("none", "None (plain 3DGS)", "train on the photos alone: the sparse-view baseline")]
 
 
 def _update_display(self, context) -> None:

@@ -31,6 +31,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--iters", type=int, default=10000, help="training iterations (default 10000, as the paper)")
     p.add_argument("--resolution-scale", type=float, default=1.0, help="train on images scaled by this")
     p.add_argument("--max-image-size", type=int, default=1600, help="SfM works on photos of this longer side")
+    p.add_argument("--prior", default="auto", choices=["auto", "diffusion", "warp", "depth", "none"],
+                   help="generative prior (default auto: diffusion when model folders are given, else warp-inpaint; "
+                        "none: plain 3DGS)")
+    p.add_argument("--diffusion-model", default="", help="local Stable Diffusion 1.5-class folder (diffusers)")
+    p.add_argument("--depth-adapter", default="", help="local depth T2I-Adapter folder (diffusers)")
     p.add_argument("--pseudo-views", type=int, default=16, help="pseudo poses along a path through the cameras "
                                                                 "(0: none)")
     p.add_argument("--timeout", type=float, default=None, help="give up on a job after this many seconds")
@@ -59,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     prefs.python_path = args.python or preferences.default_python()
     prefs.engine_root = preferences.default_engine_root()
     prefs.jobs_dir = str(out / "jobs")
+    prefs.diffusion_dir = args.diffusion_model
+    prefs.depth_adapter_dir = args.depth_adapter
     scene = bpy.context.scene
     s = scene.gsgs
     t0 = time.monotonic()
@@ -76,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"reconstruct: {args.pseudo_views} pseudo poses on the path", flush=True)
         s.iterations = args.iters
         s.resolution_scale = args.resolution_scale
+        s.generator = args.prior
         print(f"reconstruct: training {args.iters} iterations", flush=True)
         bpy.ops.gsgs.train()
     except RuntimeError as exc:  # an operator reported an error

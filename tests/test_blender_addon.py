@@ -138,7 +138,10 @@ def test_known_poses_pseudo_path_and_train_job(addon, tmp_path):
         np.testing.assert_allclose(view.camera.t, cam.t, atol=1e-6)
         assert view.camera.fx == pytest.approx(cam.fx, rel=1e-6)
         assert Path(view.image_path).resolve() == Path(image)
-    assert set(job.spec["settings"]) == {"iters", "resolution_scale"}
+    settings = job.spec["settings"]
+    assert settings["prior"] == "auto" and settings["prior_settings"]["rounds"] == 3
+    scene.gsgs.generator = "none"
+    assert train_spec(bpy.context)["settings"] == {"iters": 10000, "resolution_scale": 1.0, "prior": "none"}
 
 
 def test_slerp_orientation_stays_between_neighbours(addon):
@@ -187,6 +190,7 @@ def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
     bpy.ops.gsgs.use_scene_cameras()
     scene.gsgs.iterations = 30
     scene.gsgs.resolution_scale = 0.25
+    scene.gsgs.generator = "none"  # the plain trainer: quick; the prior has its own tests
     assert bpy.ops.gsgs.train() == {"FINISHED"}  # headless: waits for the job
     run = job_runner.attach(bpy.path.abspath(scene.gsgs.train_job))
     assert run.state == "ok", run.message
