@@ -37,7 +37,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
     p.add_argument("--resolution", type=int, default=128, help="square render size in pixels (default 128)")
     p.add_argument("--samples", type=int, default=16, help="Cycles samples per pixel (denoised; default 16)")
-    p.add_argument("--iters", type=int, default=1500, help="training steps per run (default 1500)")
+    p.add_argument("--iters", type=int, default=500,
+                   help="training steps per run (default 500: two runs fit ~15 min on 2 CPU cores)")
     p.add_argument("--backend", default="auto", help="rasteriser backend passed to gsgs train (default auto)")
     p.add_argument("--prior", default=None,
                    help="prior for the second run (default: gsgs train's default prior, when one exists)")

@@ -380,3 +380,21 @@ def test_render_validation_script_with_the_bpy_module(tmp_path):
     assert not [o for o in bpy.data.objects if o.type == "CAMERA"]
     assert rv.main(["x.py", "--blend", str(tmp_path / "missing.blend"), "--out", str(out)]) == 2
     assert rv.main(["x.py", "--blend", str(blend), "--out", str(out), "--train-collection", "nope"]) == 2
+
+
+def test_exporter_agrees_with_the_add_on_camera_conversion():
+    """The dataset JSON and the add-on's camera_from_object describe the same camera."""
+    try:
+        from gsgs_blender.camera_convert import camera_from_object
+    except ImportError as exc:
+        pytest.skip(f"gsgs_blender.camera_convert is not importable ({exc})")
+    scene = empty_scene()
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 30, 40, 100
+    cam = add_camera(scene, "cam", (2.0, -3.0, 1.0), target=(0.0, 0.5, 0.2), lens=35.0, shift_x=0.1, shift_y=-0.04)
+    bpy.context.view_layer.update()
+    frame = {"transform_matrix": dr.camera_to_world(cam), **dr.camera_intrinsics(cam, scene)}
+    ours = camera_from_frame({}, frame)
+    theirs = camera_from_object(cam, scene)
+    assert (theirs.width, theirs.height) == (ours.width, ours.height)
+    assert np.allclose([theirs.fx, theirs.fy, theirs.cx, theirs.cy], [ours.fx, ours.fy, ours.cx, ours.cy], atol=1e-6)
+    assert np.allclose(theirs.R, ours.R, atol=1e-6) and np.allclose(theirs.t, ours.t, atol=1e-6)
