@@ -394,3 +394,20 @@ def test_frustum_lines_reach_the_image_corners():
     uv, z = cam.project(corners)
     np.testing.assert_allclose(uv, [[0, 0], [320, 0], [320, 240], [0, 240]], atol=1e-3)
     np.testing.assert_allclose(z, 0.7, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_reconstruct_script_end_to_end(tmp_path):
+    import subprocess
+
+    photos = shared_scene("photos_santorini")
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / "reconstruct.py"), "--photos", str(photos),
+                          "--out", str(tmp_path / "out"), "--iters", "5", "--resolution-scale", "0.25",
+                          "--max-image-size", "320", "--pseudo-views", "4", "--prior", "none",
+                          "--python", sys.executable],
+                         capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    assert (tmp_path / "out" / "scene.blend").is_file()
+    assert "reconstruct: ok" in out.stdout and " splats, " in out.stdout
+    train_jobs = list((tmp_path / "out" / "jobs").glob("train-*/job.json"))
+    assert len(train_jobs) == 1 and len(json.loads(train_jobs[0].read_text())["pseudo_poses"]) == 4
