@@ -241,20 +241,60 @@ def _render_view_layer(scene: bpy.types.Scene) -> bpy.types.ViewLayer:
 
 
 def _depth_compositor(scene: bpy.types.Scene, layer: bpy.types.ViewLayer):
-    """A compositor that writes the Depth pass as a single-channel float32 EXR (Blender 4.5+ / 5.x API)."""
-    tree = bpy.data.node_groups.new("gsgs_depth_output", "CompositorNodeTree")
+    """A compositor that writes the Depth pass as a single-channel float32 EXR.
+
+    Returns (node tree, file output node, set_output(directory, stem)). Blender 5 gives the scene
+    a compositor node group; Blender 4.x keeps scene.node_tree and needs a Composite node, or the
+    render result would be empty.
+    """
+    legacy = not hasattr(scene, "compositing_node_group")
+    if legacy:
+        scene.use_nodes = True
+        tree = scene.node_tree
+    else:
+        tree = bpy.data.node_groups.new("gsgs_depth_output", "CompositorNodeTree")
     rl = tree.nodes.new("CompositorNodeRLayers")
     rl.scene = scene
     rl.layer = layer.name
     out = tree.nodes.new("CompositorNodeOutputFile")
-    out.format.media_type = "IMAGE"
+    if hasattr(out.format, "media_type"):
+        out.format.media_type = "IMAGE"
     out.format.file_format = "OPEN_EXR"
     out.format.color_depth = "32"
     out.format.color_mode = "BW"
     out.format.exr_codec = "ZIP"
-    out.file_output_items.new("FLOAT", "depth")
-    tree.links.new(rl.outputs["Depth"], out.inputs["depth"])
-    return tree, out
+    added = [rl, out]
+    if legacy:
+        composite = tree.nodes.new("CompositorNodeComposite")
+        added.append(composite)
+        tree.links.new(rl.outputs["Image"], composite.inputs["Image"])
+        tree.links.new(rl.outputs["Depth"], out.inputs[0])
+
+        def set_output(directory: Path, stem: str) -> None:
+            out.base_path = str(directory)
+            out.file_slots[0].path = stem + DEPTH_SUFFIX + "_"  # Blender 4 appends the frame number
+
+    else:
+        out.file_output_items.new("FLOAT", "depth")
+        tree.links.new(rl.outputs["Depth"], out.inputs["depth"])
+
+        def set_output(directory: Path, stem: str) -> None:
+            out.directory = str(directory)
+            out.file_name = stem + "_"  # + the item name "depth" -> r_<i>_depth.exr
+
+    return tree, added, set_output
+
+
+def _collect_depth(split_dir: Path, stem: str) -> Path:
+    """The depth EXR of one view under its final name (older Blenders add a frame number)."""
+    final = split_dir / f"{stem}{DEPTH_SUFFIX}.exr"
+    if final.is_file():
+        return final
+    numbered = sorted(split_dir.glob(f"{stem}{DEPTH_SUFFIX}_[0-9]*.exr"), key=lambda p: p.stat().st_mtime)
+    if not numbered:
+        raise GsgsError(f"{final}: the depth pass was not written; check that the output folder is writable")
+    os.replace(numbered[-1], final)
+    return final
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -287,7 +327,7 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
     out.mkdir(parents=True, exist_ok=True)
 
     saved = _SavedSettings()
-    depth_tree = None
+    depth_tree = depth_nodes = None
     summary = {"out_dir": str(out), "splits": {}, "denoiser": None, "with_depth": with_depth}
     try:
         r = scene.render
@@ -311,7 +351,8 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
         saved.set(r, "film_transparent", True)
         saved.set(r, "use_persistent_data", True)  # only the camera changes between views: keep the BVH
         saved.set(r, "use_file_extension", True)
-        saved.set(r.image_settings, "media_type", "IMAGE")
+        if hasattr(r.image_settings, "media_type"):  # Blender 5 groups formats by media type
+            saved.set(r.image_settings, "media_type", "IMAGE")
         saved.set(r.image_settings, "file_format", "PNG")
         saved.set(r.image_settings, "color_mode", "RGBA")
         saved.set(r.image_settings, "color_depth", "8")
@@ -321,8 +362,13 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
         saved.set(r, "use_compositing", with_depth)
         if with_depth:
             saved.set(layer, "use_pass_z", True)
-            depth_tree, depth_node = _depth_compositor(scene, layer)
-            saved.set(scene, "compositing_node_group", depth_tree)
+            if hasattr(scene, "compositing_node_group"):
+                saved.set(scene, "compositing_node_group", None)  # restored after the tree is made
+                depth_tree, depth_nodes, set_depth_output = _depth_compositor(scene, layer)
+                scene.compositing_node_group = depth_tree
+            else:
+                saved.set(scene, "use_nodes", scene.use_nodes)
+                depth_tree, depth_nodes, set_depth_output = _depth_compositor(scene, layer)
         if progress and denoise and not use_oidn:
             progress("[gsgs render] OpenImageDenoise is not in this Blender build; rendering without denoising")
 
@@ -343,8 +389,7 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
                 scene.camera = cam
                 r.filepath = str(split_dir / stem)
                 if with_depth:
-                    depth_node.directory = str(split_dir)
-                    depth_node.file_name = stem + "_"  # + item name "depth" -> r_<i>_depth.exr
+                    set_depth_output(split_dir, stem)
                 t0 = time.perf_counter()
                 bpy.ops.render.render(write_still=True, scene=scene.name)
                 png = split_dir / f"{stem}.png"
@@ -355,9 +400,7 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
                 intr = camera_intrinsics(cam, scene)
                 frame.update(intr)  # per-frame intrinsics: rigs may mix lenses
                 if with_depth:
-                    depth = split_dir / f"{stem}{DEPTH_SUFFIX}.exr"
-                    if not depth.is_file():
-                        raise GsgsError(f"{depth}: the depth pass was not written; check the compositor output")
+                    depth = _collect_depth(split_dir, stem)
                     frame["depth_file_path"] = f"./{split}/{depth.name}"
                 frames.append(frame)
                 done += 1
@@ -377,7 +420,11 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
     finally:
         saved.restore()
         if depth_tree is not None:
-            bpy.data.node_groups.remove(depth_tree)
+            if hasattr(scene, "compositing_node_group"):
+                bpy.data.node_groups.remove(depth_tree)
+            else:  # Blender 4: the tree is the user's scene.node_tree; remove only our nodes
+                for node in depth_nodes:
+                    depth_tree.nodes.remove(node)
     return summary
 
 
