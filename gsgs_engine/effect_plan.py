@@ -1,0 +1,504 @@
+"""The effect plan: inspect a scene before training and model only the effects it calls for.
+
+Six effects, each decided from the data (or set by the user) with its measurement and reason:
+time (4D), view-dependent colour (SH degree), background (from alpha), depth regularisation,
+pseudo views, and the generator. A disabled effect is never set up, so it costs nothing.
+The plan is printed, saved as metrics.json["plan"]["effects"], and overridable
+(`--effects sh_degree=0,pseudo_views=off`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from gsgs_engine import GsgsError
+
+EFFECTS = ("time", "sh_degree", "background", "depth", "pseudo_views", "generator")
+
+# -- documented thresholds ---------------------------------------------------------------------
+# Pseudo views: sparse-view benchmarks train on 3-9 views (LLFF 3, DTU 3, NeRF-synthetic 8);
+# dense captures have tens to hundreds. Below DENSE_MIN_VIEWS views a scene is sparse whatever
+# the layout. Above it, a scene is still sparse where its views leave angular holes: the
+# median angle, seen from the scene's focus, between a view and its nearest neighbour exceeds
+# DENSE_MAX_GAP_DEG (measured: lego_200's 75 train+dense views 8.4 deg, its 8 sparse views
+# 24.6 deg; llff_flower's 29 train views 0.9 deg, 3 of them 1.9 deg).
+DENSE_MIN_VIEWS = 12
+DENSE_MAX_GAP_DEG = 20.0
+# View-dependent colour: the median, over SfM points seen in >= 2 training views, of the RMS
+# spread of a point's colour across those views after removing a per-view, per-channel gain
+# (exposure / white balance) and, in quadrature, the spread its localisation error explains
+# on the local texture. The median speaks for the typical surface, not a few highlights.
+# Below SH_SPREAD[0] (5/255) a scene reads as diffuse; above SH_SPREAD[k-1] it asks for
+# degree >= k. Measured: lego_200 8 views 0.000 (p90 0.045), llff_flower 3 views 0.012
+# (p90 0.048): both diffuse for their typical surface.
+SH_SPREAD = (0.02, 0.04, 0.07)
+MIN_MEASURED_POINTS = 20
+# Depth regularisation from SfM points needs enough of them to cover the views (as the prior's
+# own plan: gsgs_engine.pipeline.resolve_prior_plan).
+MIN_DEPTH_POINTS = 50
+
+
+@dataclass
+class Effect:
+    name: str
+    enabled: bool
+    value: object
+    reason: str
+    source: str = "auto"  # auto (measured / inferred) | user (override or explicit request)
+    measured: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"enabled": bool(self.enabled), "value": self.value, "reason": self.reason, "source": self.source,
+                "measured": self.measured}
+
+
+@dataclass
+class EffectPlan:
+    effects: dict[str, Effect]
+    seconds: float = 0.0  # time spent measuring (triangulation included)
+    triangulation: object = None  # gsgs_engine.sfm.Triangulation when one was made; shared with init
+
+    def __getitem__(self, name: str) -> Effect:
+        return self.effects[name]
+
+    def to_dict(self) -> dict:
+        return {**{name: e.to_dict() for name, e in self.effects.items()}, "plan_seconds": round(self.seconds, 3)}
+
+    def format(self) -> str:
+        lines = ["effect plan:"]
+        for name in EFFECTS:
+            e = self.effects[name]
+            state = "on " if e.enabled else "off"
+            value = "" if e.value in (None, True, False) else f" = {e.value}"
+            lines.append(f"  {name:<13} {state}{value:<16} ({e.source}) {e.reason}")
+        return "\n".join(lines)
+
+
+# -- overrides -------------------------------------------------------------------------------------
+def parse_overrides(text: str | None) -> dict:
+    """"sh_degree=1,pseudo_views=off" -> {"sh_degree": 1, "pseudo_views": "off"}; names are checked."""
+    out: dict = {}
+    if not text:
+        return out
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        if "=" not in item:
+            raise GsgsError(f"--effects {text!r}: {item!r} is not NAME=VALUE; names: {', '.join(EFFECTS)}")
+        key, value = (s.strip() for s in item.split("=", 1))
+        out[key] = int(value) if value.lstrip("-").isdigit() else value.lower()
+    check_overrides(out)
+    return out
+
+
+_ON = ("on", "true", "yes", 1, True)
+_OFF = ("off", "false", "no", "none", 0, False)
+
+
+def check_overrides(overrides: dict) -> None:
+    allowed = {
+        "time": ("auto",) + _ON + _OFF, "sh_degree": ("auto", 0, 1, 2, 3),
+        "background": ("auto", "transparent", "fixed"), "depth": ("auto",) + _ON + _OFF,
+        "generator": ("auto", "warp-inpaint", "warp", "diffusion"),
+    }
+    for key, value in overrides.items():
+        if key not in EFFECTS:
+            raise GsgsError(f"unknown effect {key!r} in --effects; known: {', '.join(EFFECTS)}")
+        if key == "pseudo_views":
+            if value in ("auto",) + _OFF or (isinstance(value, int) and value > 0):
+                continue
+            raise GsgsError(f"--effects pseudo_views={value!r}: use auto, off or a positive count")
+        if value not in allowed[key]:
+            raise GsgsError(f"--effects {key}={value!r}: use one of {', '.join(map(str, allowed[key]))}")
+
+
+# -- measurements ------------------------------------------------------------------------------------
+def focus_point(cameras) -> tuple[np.ndarray, str]:
+    """The point the cameras look at: least-squares nearest point to all optical axes.
+
+    Forward-facing rigs (near-parallel axes) have no such point; there the focus is the mean
+    centre pushed along the mean axis to the scene's typical depth (geometric mean of near/far).
+    """
+    centers = np.stack([c.center for c in cameras])
+    dirs = np.stack([c.R[2] for c in cameras])  # optical axis (camera +z) in world coordinates
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c, d in zip(centers, dirs):
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c
+    eig = np.linalg.eigvalsh(A)
+    if len(cameras) >= 2 and eig[0] > 0.05 * len(cameras):  # axes cross at a real angle
+        return np.linalg.solve(A, b), "optical axes intersection"
+    near = getattr(cameras[0], "near", None)
+    far = getattr(cameras[0], "far", None)
+    depth = float(np.sqrt(near * far)) if near and far else 1.0
+    axis = dirs.mean(0)
+    axis /= max(np.linalg.norm(axis), 1e-12)
+    return centers.mean(0) + depth * axis, "forward-facing: mean axis at the scene depth"
+
+
+def coverage(cameras, near: float | None = None, far: float | None = None) -> dict:
+    """View count and the median / max angle (deg) between a view and its nearest neighbour, seen from the focus."""
+    n = len(cameras)
+    if n < 2:
+        return {"views": n, "nn_gap_median_deg": None, "nn_gap_max_deg": None, "focus": "one view"}
+    if near and far:
+        cameras = [replace(c, near=near, far=far) for c in cameras]
+    focus, how = focus_point(cameras)
+    rays = np.stack([c.center for c in cameras]) - focus
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    ang = np.degrees(np.arccos(np.clip(rays @ rays.T, -1.0, 1.0)))
+    np.fill_diagonal(ang, np.inf)
+    nn = ang.min(axis=1)
+    return {"views": n, "nn_gap_median_deg": round(float(np.median(nn)), 2),
+            "nn_gap_max_deg": round(float(nn.max()), 2), "focus": how}
+
+
+def _patch_mean(img: np.ndarray, u: float, v: float) -> np.ndarray | None:
+    """Mean colour of the 3x3 pixels around continuous pixel coordinate (u, v) (pixel centres at .5)."""
+    h, w = img.shape[:2]
+    x, y = int(np.floor(u)), int(np.floor(v))
+    if x < 1 or y < 1 or x > w - 2 or y > h - 2:
+        return None
+    return img[y - 1:y + 2, x - 1:x + 2].reshape(-1, 3).mean(0)
+
+
+def _sample(img: np.ndarray, u: float, v: float) -> tuple[np.ndarray, float] | None:
+    """(3x3 mean colour, its squared gradient magnitude per pixel of shift, averaged over channels)."""
+    c = _patch_mean(img, u, v)
+    around = [_patch_mean(img, u + du, v + dv) for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+    if c is None or any(a is None for a in around):
+        return None
+    gx = (around[0] - around[1]) / 2
+    gy = (around[2] - around[3]) / 2
+    return c, float((gx ** 2 + gy ** 2).mean())
+
+
+def exposure_corrected_spread(obs: list[np.ndarray], num_views: int, iterations: int = 4,
+                              noise: np.ndarray | None = None) -> dict:
+    """Spread of point colours across views after removing a per-view, per-channel gain.
+
+    `obs[p]` is a (k, 4) array of (view, r, g, b) for point p. Colour model:
+    c[p, v] = a[p] * g[v] (channel-wise), g fitted by alternating medians of ratios, which is
+    robust to the few misplaced observations at depth edges. `noise[p]` (optional) is the
+    variance a point's colours would show from localisation error alone; it is removed in
+    quadrature so texture edges do not read as view dependence. Returns the median and 90th
+    percentile of the per-point RMS residual (unbiased over the k views) and the gains.
+    """
+    gains = np.ones((num_views, 3))
+    for _ in range(iterations):
+        ratios: list[list[np.ndarray]] = [[] for _ in range(num_views)]
+        for o in obs:
+            views, cols = o[:, 0].astype(int), o[:, 1:]
+            albedo = (cols / gains[views]).mean(0)
+            bright = albedo > 0.05  # dark colours give unstable ratios
+            for vi, c in zip(views, cols):
+                ratios[vi].append(np.where(bright, c / np.maximum(albedo, 1e-6), np.nan))
+        for vi in range(num_views):
+            if ratios[vi]:
+                with np.errstate(all="ignore"):
+                    g = np.nanmedian(np.stack(ratios[vi]), axis=0)
+                gains[vi] = np.where(np.isfinite(g) & (g > 0), g, 1.0)
+        gains /= np.exp(np.log(gains).mean(0))  # the gains' overall scale belongs to the albedo
+    spreads = []
+    for p, o in enumerate(obs):
+        views, cols = o[:, 0].astype(int), o[:, 1:]
+        corrected = cols / gains[views]
+        res = corrected - corrected.mean(0)
+        var = (res ** 2).sum(0).mean() / (len(corrected) - 1)
+        if noise is not None:
+            var = max(var - float(noise[p]), 0.0)
+        spreads.append(float(np.sqrt(var)))
+    s = np.asarray(spreads)
+    return {"points": len(s), "spread_median": float(np.median(s)) if len(s) else None,
+            "spread_p90": float(np.percentile(s, 90)) if len(s) else None, "gains": gains.round(4).tolist()}
+
+
+def measure_view_dependence(images: list[np.ndarray], tracks: list[np.ndarray],
+                            errors: np.ndarray | None = None) -> dict:
+    """Colour spread of SfM points across the training views (see exposure_corrected_spread).
+
+    `tracks[p]` is a (k, 3) array of (view index, u, v) as gsgs_engine.sfm.Triangulation gives;
+    `errors[p]` its reprojection error in pixels. The localisation noise of an observation is
+    (max(error, 0.5 px) x local colour gradient)^2: what sampling a textured spot that far off
+    would change.
+    """
+    obs, noise = [], []
+    for p, track in enumerate(tracks):
+        rows, var = {}, []
+        sigma = max(float(errors[p]) if errors is not None and p < len(errors) else 0.5, 0.5)
+        for vi, u, v in np.asarray(track, dtype=np.float64).reshape(-1, 3):
+            got = _sample(images[int(vi)], u, v)
+            if got is not None and int(vi) not in rows:  # one observation per view
+                rows[int(vi)] = got[0]
+                var.append(sigma ** 2 * got[1])
+        if len(rows) >= 2:
+            obs.append(np.array([[vi, *c] for vi, c in rows.items()], dtype=np.float64))
+            noise.append(float(np.mean(var)))
+    return exposure_corrected_spread(obs, len(images), noise=np.asarray(noise))
+
+
+def sh_degree_for_spread(spread: float) -> int:
+    """Measured colour spread -> SH degree (thresholds SH_SPREAD)."""
+    return int(sum(spread >= t for t in SH_SPREAD))
+
+
+def identifiable_sh_degree(num_views: int) -> int:
+    """Highest degree whose (d+1)^2 coefficients per channel the real views can pin down.
+
+    A Gaussian is seen at most once per training view; with fewer views than coefficients the
+    extra ones fit nothing and extrapolate freely at novel views (pseudo views are derived from
+    the same photos, so they add no new view-dependent observations).
+    """
+    d = 0
+    while d < 3 and (d + 2) ** 2 <= num_views:
+        d += 1
+    return d
+
+
+def _truthy(value) -> bool | None:
+    if value in _ON:
+        return True
+    if value in _OFF:
+        return False
+    return None
+
+
+# -- the plan ---------------------------------------------------------------------------------------
+def plan_effects(scene, train_config, prior_config=None, overrides: dict | None = None, train_views=None,
+                 triangulation=None, log=print) -> EffectPlan:
+    """Decide the six effects for `scene` (see the module docstring); measures only what an auto choice needs.
+
+    `triangulation` (a gsgs_engine.sfm.Triangulation of the training views) is made here when
+    the SH degree or the depth source is auto and it is not given; `shared_triangulation(plan)`
+    lets the trainer's initialisation reuse it instead of triangulating again.
+    """
+    from gsgs_engine.pipeline import PriorConfig, diffusion_configured
+
+    t_start = time.perf_counter()
+    prior_config = prior_config or PriorConfig(prior="none")
+    overrides = dict(overrides or {})
+    check_overrides(overrides)
+    views = list(scene.train if train_views is None else train_views)
+    if not views:
+        raise GsgsError(f"{scene.source}: no training views to plan for; check --train-split / --train-ids")
+    cams = [v.camera for v in views]
+    effects: dict[str, Effect] = {}
+
+    # time: 4D only when the training views carry at least two distinct times
+    times = sorted({v.camera.time for v in views if v.camera.time is not None})
+    want = _truthy(overrides.get("time", "auto"))
+    if want is None:
+        on = len(times) >= 2
+        effects["time"] = Effect("time", on, "spacetime" if on else "static",
+                                 f"{len(times)} distinct frame times in the training views" if times
+                                 else "the views carry no time", measured={"distinct_times": len(times)})
+    else:
+        if want and len(times) < 2:
+            raise GsgsError(f"--effects time=on: {scene.source} has {len(times)} distinct frame times; 4D needs a "
+                            "multi-view video (frames with a time)")
+        effects["time"] = Effect("time", want, "spacetime" if want else "static", "--effects time", "user",
+                                 {"distinct_times": len(times)})
+
+    # the prior's request bounds what auto may switch on
+    requested = prior_config.prior
+    sh_auto = overrides.get("sh_degree", "auto") == "auto"
+    depth_want = _truthy(overrides.get("depth", "auto"))
+    depth_possible = requested != "none" and prior_config.depth_reg and prior_config.depth_source != "none"
+    depth_model = prior_config.depth_source not in ("auto", "none", "sparse")
+    needs_points = (sh_auto or (depth_possible and depth_want is not False and not depth_model))
+    if needs_points and triangulation is None and train_config.init in ("auto", "sfm") and len(views) >= 2:
+        from gsgs_engine.sfm import triangulate_with_known_poses
+
+        log(f"effect plan: triangulating {len(views)} training views (shared with initialisation)")
+        triangulation = triangulate_with_known_poses(views)
+    num_points = None
+    if triangulation is not None:
+        num_points = int(len(triangulation.points))
+    elif scene.points is not None:
+        num_points = int(len(scene.points))
+
+    # view-dependent colour
+    cap = identifiable_sh_degree(len(views))
+    if not sh_auto:
+        d = int(overrides["sh_degree"])
+        effects["sh_degree"] = Effect("sh_degree", d > 0, d, "--effects sh_degree", "user")
+    else:
+        measured: dict = {"identifiable_degree": cap, "num_train_views": len(views)}
+        tracks = getattr(triangulation, "tracks", None) or []
+        if len([t for t in tracks if len(t) >= 2]) >= MIN_MEASURED_POINTS:
+            images = [v.image() for v in views]
+            m = measure_view_dependence(images, tracks, getattr(triangulation, "errors", None))
+            measured.update({k: (round(v, 4) if isinstance(v, float) else v) for k, v in m.items() if k != "gains"})
+        if measured.get("points", 0) >= MIN_MEASURED_POINTS:
+            wanted = sh_degree_for_spread(measured["spread_median"])
+            d = min(wanted, cap)
+            why = (f"colour spread across views {measured['spread_median']:.3f} (median of {measured['points']} "
+                   f"SfM points, exposure removed) -> degree {wanted}")
+            if cap < wanted:
+                why += f"; {len(views)} views identify at most degree {cap}"
+        else:
+            d = cap
+            why = (f"view dependence not measurable ({measured.get('points', 0)} points seen twice); degree "
+                   f"{cap}, the most {len(views)} views identify")
+        effects["sh_degree"] = Effect("sh_degree", d > 0, d, why, measured=measured)
+
+    # background: RGBA views -> a random background each step so alpha is learned, not painted
+    bg = overrides.get("background", "auto")
+    if bg == "auto":
+        on = bool(scene.has_alpha)
+        effects["background"] = Effect("background", on, "transparent" if on else "fixed",
+                                       "RGBA views: random background each step, alpha learned (composites in "
+                                       "Blender)" if on else "RGB views: the background is part of the photos")
+    else:
+        if bg == "transparent" and not scene.has_alpha:
+            raise GsgsError(f"--effects background=transparent: {scene.source} has no alpha channel; use fixed")
+        effects["background"] = Effect("background", bg == "transparent", bg, "--effects background", "user")
+
+    # depth regularisation: only with a depth source
+    if depth_want is False or not depth_possible:
+        why = ("--effects depth=off" if depth_want is False else "prior none" if requested == "none"
+               else "--no-depth-reg" if not prior_config.depth_reg else "--depth-source none")
+        if depth_want is True:
+            raise GsgsError(f"--effects depth=on contradicts {why}")
+        effects["depth"] = Effect("depth", False, None, why, "user")
+    elif depth_model:
+        if not Path(prior_config.depth_source).is_dir():
+            raise GsgsError(f"--depth-source {prior_config.depth_source!r}: folder not found; give a local "
+                            "depth-estimation model folder, 'sparse', 'none' or 'auto'")
+        effects["depth"] = Effect("depth", True, prior_config.depth_source, "depth-estimation model folder",
+                                  "user" if depth_want else "auto")
+    elif num_points is not None and num_points >= MIN_DEPTH_POINTS:
+        effects["depth"] = Effect("depth", True, "sparse", f"{num_points} SfM points of the training views, "
+                                  "densified per view", "user" if depth_want else "auto", {"sfm_points": num_points})
+    else:
+        if depth_want is True:
+            raise GsgsError(f"--effects depth=on: no depth source ({num_points or 0} SfM points, no depth model); "
+                            "pass --depth-source MODEL_DIR")
+        effects["depth"] = Effect("depth", False, None, f"no depth source: {num_points or 0} SfM points "
+                                  f"(< {MIN_DEPTH_POINTS}) and no depth model", measured={"sfm_points": num_points})
+
+    # pseudo views: only when the views are sparse for the scene's coverage
+    cov = coverage(cams, scene.near, scene.far)
+    pv = overrides.get("pseudo_views", "auto")
+    gen_possible = requested not in ("none", "depth")
+    if pv in _OFF or not gen_possible:
+        effects["pseudo_views"] = Effect("pseudo_views", False, 0, "--effects pseudo_views=off" if pv in _OFF
+                                         else f"prior {requested}", "user", cov)
+    elif isinstance(pv, int):
+        effects["pseudo_views"] = Effect("pseudo_views", True, pv, "--effects pseudo_views", "user", cov)
+    elif requested in ("warp", "diffusion"):
+        effects["pseudo_views"] = Effect("pseudo_views", True, prior_config.num_pseudo,
+                                         f"--prior {requested} asks for them", "user", cov)
+    else:
+        gap = cov["nn_gap_median_deg"]
+        sparse = cov["views"] < DENSE_MIN_VIEWS or (gap is not None and gap > DENSE_MAX_GAP_DEG)
+        why = (f"{cov['views']} views (< {DENSE_MIN_VIEWS})" if cov["views"] < DENSE_MIN_VIEWS else
+               f"{cov['views']} views, nearest-view gap {gap} deg "
+               f"{'>' if sparse else '<='} {DENSE_MAX_GAP_DEG}")
+        effects["pseudo_views"] = Effect("pseudo_views", sparse, prior_config.num_pseudo if sparse else 0,
+                                         ("sparse: " if sparse else "dense: ") + why, measured=cov)
+
+    # the generator: diffusion only with weights, else warp-inpaint
+    g = overrides.get("generator", "auto")
+    has_weights = diffusion_configured(prior_config)
+    if not effects["pseudo_views"].enabled:
+        effects["generator"] = Effect("generator", False, None, "no pseudo views", effects["pseudo_views"].source)
+    elif g == "diffusion" or requested == "diffusion":
+        if not has_weights:
+            raise GsgsError("the diffusion generator needs local model folders: --diffusion-model and "
+                            "--depth-adapter; or use --effects generator=warp-inpaint")
+        effects["generator"] = Effect("generator", True, "diffusion", "requested", "user")
+    elif g in ("warp", "warp-inpaint") or requested == "warp":
+        effects["generator"] = Effect("generator", True, "warp-inpaint", "requested", "user")
+    else:
+        effects["generator"] = Effect("generator", True, "diffusion" if has_weights else "warp-inpaint",
+                                      "diffusion weights configured" if has_weights
+                                      else "no diffusion weights configured: weights-free warp-inpaint")
+    return EffectPlan(effects, time.perf_counter() - t_start, triangulation)
+
+
+def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
+    """(TrainConfig, PriorConfig) that model exactly the plan's effects (copies; inputs untouched)."""
+    from gsgs_engine.pipeline import PriorConfig
+
+    if plan["time"].enabled:
+        raise GsgsError("this scene has time (4D) but the trainer trains static 3D Gaussians only; "
+                        "train one frame (--effects time=off) until 4D training lands")
+    tc = replace(train_config, sh_degree=int(plan["sh_degree"].value),
+                 random_background=plan["background"].value == "transparent")
+    pc = replace(prior_config or PriorConfig(prior="none"))
+    gen, depth = plan["generator"].value, plan["depth"].value
+    if gen:
+        pc.prior = "diffusion" if gen == "diffusion" else "warp"
+        pc.num_pseudo = int(plan["pseudo_views"].value)
+    else:
+        pc.prior = "depth" if depth else "none"
+    pc.depth_reg = bool(depth)
+    pc.depth_source = depth if depth else "none"
+    return tc, pc
+
+
+@contextlib.contextmanager
+def shared_triangulation(plan: EffectPlan, views):
+    """Let the trainer's SfM initialisation reuse the plan's triangulation of the same views.
+
+    The trainer calls gsgs_engine.sfm.triangulate_known_poses at initialisation; this swaps in,
+    for the duration, a function that answers for exactly these views (same names and
+    cameras) from the plan and defers to the original for anything else. Costs nothing when
+    the plan made no triangulation.
+    """
+    tri = plan.triangulation
+    if tri is None:
+        yield
+        return
+    import gsgs_engine.sfm as sfm
+
+    original = sfm.triangulate_known_poses
+    key = _views_key(views)
+
+    def cached(vs, out_dir=None, **options):
+        if out_dir is None and not options and _views_key(vs) == key:
+            return tri.points, tri.colors
+        return original(vs, out_dir=out_dir, **options)
+
+    sfm.triangulate_known_poses = cached
+    try:
+        yield
+    finally:
+        sfm.triangulate_known_poses = original
+
+
+def _views_key(views) -> tuple:
+    out = []
+    for v in views:
+        cam = v.camera if hasattr(v, "camera") else v[0]
+        out.append((cam.name, cam.width, cam.height, round(cam.fx, 6), tuple(np.round(cam.t, 6)),
+                    tuple(np.round(cam.R, 6).ravel())))
+    return tuple(out)
+
+
+def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_dir, overrides: dict | None = None,
+                       job=None, resume: bool = False, plan: dict | None = None, stream=None, log=print) -> dict:
+    """Plan the effects, print the plan, train what it enables; metrics.json["plan"]["effects"] holds it."""
+    from gsgs_engine.pipeline import run_prior_training
+
+    effect_plan = plan_effects(scene, train_config, prior_config, overrides, log=log)
+    log(effect_plan.format())
+    tc, pc = apply_effect_plan(effect_plan, train_config, prior_config)
+    merged = {**(plan or {}), "effects": effect_plan.to_dict()}
+    with shared_triangulation(effect_plan, scene.train):
+        metrics = run_prior_training(scene, tc, pc, out_dir, checkpoint_dir, job=job, resume=resume, plan=merged,
+                                     stream=stream)
+    metrics.setdefault("phase_seconds", {})["plan"] = round(effect_plan.seconds, 3)
+    from gsgs_engine.job import write_json_atomic
+
+    write_json_atomic(Path(out_dir) / "metrics.json", metrics)
+    return metrics
