@@ -356,6 +356,7 @@ def _load_script(name: str):
     return mod
 
 
+@pytest.mark.slow
 def test_render_validation_script_with_the_bpy_module(tmp_path):
     rv = _load_script("render_validation")
     assert rv.script_argv(["blender", "--background", "s.blend", "--python", "x.py", "--", "--out", "D"]) == ["--out", "D"]
