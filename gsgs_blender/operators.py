@@ -34,6 +34,17 @@ def new_job_dir(context, task: str) -> Path:
     return path
 
 
+def stored_path(path: Path) -> str:
+    """A job folder as the .blend keeps it: relative (//...) when the file is saved, so a project
+    folder moved to another machine still finds its jobs."""
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(str(path))
+        except ValueError:  # another drive (Windows)
+            pass
+    return str(path)
+
+
 def launch(context, job: Job, on_finish: Callable[[job_runner.JobRun], None] | None = None,
            timeout: float | None = None) -> job_runner.JobRun:
     """Start the engine on `job`. Interactive: returns at once, a timer polls. Headless: waits."""

@@ -14,7 +14,7 @@ from gsgs_engine.cameras import Camera
 from gsgs_engine.job import Job
 
 from . import camera_convert
-from .operators import job_run, launch, new_job_dir, report_error, scene_callback
+from .operators import job_run, launch, new_job_dir, report_error, scene_callback, stored_path
 
 CAMERA_COLLECTION = "GS-GS Cameras"
 POINTS_NAME = "GS-GS Sparse Points"
@@ -158,7 +158,7 @@ class GSGS_OT_import_photos(bpy.types.Operator):
             job = Job.create(new_job_dir(context, "sfm"), "sfm", data={"photos": str(photos)},
                              settings={"max_image_size": settings.max_image_size},
                              blender={"file": bpy.data.filepath, "scene": scene.name})
-            settings.sfm_job = str(job.root)
+            settings.sfm_job = stored_path(job.root)
             run = launch(context, job, on_finish=scene_callback(scene.name, _on_sfm_finished))
         except GsgsError as exc:
             return report_error(self, exc)

@@ -10,7 +10,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.job import Job
 
 from . import camera_convert, pseudo_paths
-from .operators import job_run, launch, new_job_dir, report_error, scene_callback
+from .operators import job_run, launch, new_job_dir, report_error, scene_callback, stored_path
 from .preferences import get_prefs, prior_settings
 
 JOB_KINDS = [("sfm", "Camera Solve", ""), ("train", "Training", ""), ("validate", "Validation", "")]
@@ -98,7 +98,7 @@ class GSGS_OT_train(bpy.types.Operator):
         scene = context.scene
         try:
             job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
-            scene.gsgs.train_job = str(job.root)
+            scene.gsgs.train_job = stored_path(job.root)
             run = launch(context, job, on_finish=scene_callback(scene.name, _on_train_finished))
         except GsgsError as exc:
             return report_error(self, exc)
@@ -136,7 +136,7 @@ class GSGS_OT_validate(bpy.types.Operator):
                              data={"path": str(source), "format": "auto", "train_views": int(s.validate_views)},
                              settings={"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
                                        **prior_settings(get_prefs(context), s.generator, s.rounds)})
-            s.validate_job = str(job.root)
+            s.validate_job = stored_path(job.root)
             run = launch(context, job)
         except GsgsError as exc:
             return report_error(self, exc)

@@ -145,7 +145,7 @@ try:
     info["gsgs_engine"] = gsgs_engine.__version__
     try:
         from gsgs_engine.render import available_backends
-        info["backends"] = list(available_backends())
+        info["backends"] = [name for name, (ok, _) in available_backends().items() if ok]
     except Exception:
         info["backends"] = None
 except Exception as exc:

@@ -254,11 +254,11 @@ def _draw() -> None:
     if _CACHE["batch"] is None:
         return
     shader = _CACHE["shader"]
-    gpu.state.line_width_set(1.5)
+    gpu.state.depth_test_set("LESS_EQUAL")  # frusta hide behind the splats, like real objects
     shader.bind()
     shader.uniform_float("color", (1.0, 0.55, 0.1, 1.0))
     _CACHE["batch"].draw(shader)
-    gpu.state.line_width_set(1.0)
+    gpu.state.depth_test_set("NONE")
 
 
 def register_drawing() -> None:

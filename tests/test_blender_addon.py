@@ -220,9 +220,19 @@ def test_import_photos_headless_creates_posed_cameras_and_points(addon):
     co = np.empty(len(pts_obj.data.vertices) * 3, np.float32)
     pts_obj.data.vertices.foreach_get("co", co)
     pts = co.reshape(-1, 3)
+    from gsgs_blender.ops_photos import read_cameras_json
+
+    solved = {c.name: (c, image) for c, image in
+              read_cameras_json(Path(bpy.path.abspath(scene.gsgs.sfm_job)) / "result" / "cameras.json")}
+    assert sorted(solved) == sorted(o.name for o in objs)
     for obj in objs:
         assert obj.data.show_background_images and obj.data.background_images[0].image is not None
         cam = camera_convert.camera_from_object(obj, scene)
+        ref, image = solved[obj.name]
+        assert obj["gsgs_image"] == image
+        np.testing.assert_allclose(cam.R, ref.R, atol=1e-6)
+        np.testing.assert_allclose(cam.t, ref.t, atol=1e-5)
+        np.testing.assert_allclose([cam.fx, cam.fy, cam.cx, cam.cy], [ref.fx, ref.fy, ref.cx, ref.cy], rtol=1e-6)
         assert max(cam.width, cam.height) <= 480
         uv, z = cam.project(pts)
         inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height)
