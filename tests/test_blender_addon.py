@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -421,3 +422,83 @@ def test_reconstruct_script_end_to_end(tmp_path):
     assert "reconstruct: ok" in out.stdout and " splats, " in out.stdout
     train_jobs = list((tmp_path / "out" / "jobs").glob("train-*/job.json"))
     assert len(train_jobs) == 1 and len(json.loads(train_jobs[0].read_text())["pseudo_poses"]) == 4
+
+
+# -- operators against a stand-in engine (same folder protocol, instant) ---------------------------
+
+FAKE_ENGINE = r'''
+import json, sys
+import numpy as np
+from gsgs_engine.job import Job
+from gsgs_engine.io.ply import GaussianPly, write_gaussian_ply
+job = Job.open(sys.argv[1])
+job.set_status("running", "started")
+job.emit("train", 1, 1, losses={"l1": 0.1})
+n = 64
+rng = np.random.default_rng(0)
+write_gaussian_ply(job.result_dir / "point_cloud.ply", GaussianPly(
+    positions=rng.normal(size=(n, 3)), opacity_logits=np.zeros(n), log_scales=np.full((n, 3), -3.0),
+    quats_wxyz=np.tile([1.0, 0, 0, 0], (n, 1)), sh_dc=np.zeros((n, 3)), sh_rest=np.zeros((n, 0, 3))))
+(job.result_dir / "metrics.json").write_text(json.dumps({"psnr": 21.5, "ssim": 0.8, "lpips": None}))
+(job.root / "seen_spec.json").write_text(json.dumps(job.spec))
+job.set_status("ok", "fake finished")
+'''
+
+
+@pytest.fixture()
+def fake_engine(tmp_path, monkeypatch):
+    script = tmp_path / "fake_engine.py"
+    script.write_text(FAKE_ENGINE)
+    monkeypatch.setattr(job_runner, "engine_command", lambda python, job_dir: [sys.executable, str(script), str(job_dir)])
+    from gsgs_blender import preferences
+
+    monkeypatch.setattr(preferences._FALLBACK, "engine_root", str(REPO))
+    return script
+
+
+def test_finished_job_imports_its_result_from_the_polling_callback(addon, fake_engine, tmp_path):
+    """The interactive path without a window: start with no wait, poll as the timer does, the
+    on_finish callback imports the splats only once the status is ok."""
+    from gsgs_blender.ops_result import import_job_result
+    from gsgs_blender.ops_train import _on_train_finished
+    from gsgs_engine import GsgsError
+    from gsgs_engine.job import Job
+
+    scene = addon
+    job = Job.create(tmp_path / "job", "train", data={"path": "x"})
+    scene.gsgs.train_job = str(job.root)
+    with pytest.raises(GsgsError, match="imported only after"):
+        import_job_result(scene, job.root)  # no status yet
+    run = job_runner.start(job.root, sys.executable, engine_root=REPO, use_timer=False,
+                           on_finish=operators.scene_callback(scene.name, _on_train_finished))
+    for _ in range(600):
+        if not job_runner.tick_all():
+            break
+        time.sleep(0.05)
+    assert run.state == "ok" and "imported 64 splats" in run.message
+    assert scene.gsgs.result_object["gsgs_count"] == 64
+
+
+def test_validate_operator_writes_the_job_and_shows_metrics(addon, fake_engine):
+    scene = addon
+    scene.gsgs.validate_source = str(shared_scene("lego_200"))
+    scene.gsgs.validate_views = 8
+    scene.gsgs.iterations = 123
+    assert bpy.ops.gsgs.validate() == {"FINISHED"}
+    root = Path(bpy.path.abspath(scene.gsgs.validate_job))
+    spec = json.loads((root / "seen_spec.json").read_text())
+    assert spec["task"] == "validate" and spec["data"]["train_views"] == 8
+    assert spec["settings"]["iters"] == 123 and spec["settings"]["prior"] == "auto"
+    assert panels._metrics(scene.gsgs.validate_job) == "PSNR 21.50  SSIM 0.800"  # LPIPS null: not shown
+
+
+def test_resume_operator_runs_the_same_folder_again(addon, fake_engine, tmp_path):
+    from gsgs_engine.job import Job
+
+    scene = addon
+    job = Job.create(tmp_path / "job", "train", data={"path": "x"})
+    job.set_status("cancelled", "cancelled at step 3")
+    scene.gsgs.train_job = str(job.root)
+    assert bpy.ops.gsgs.resume_job(kind="train") == {"FINISHED"}
+    assert job.status()["state"] == "ok"
+    assert scene.gsgs.result_object["gsgs_count"] == 64  # the finished resume imported its result
