@@ -22,15 +22,16 @@ ADDON_DIR = REPO / "gsgs_blender"
 
 
 @pytest.fixture()
-def addon(tmp_path):
+def addon(tmp_path, monkeypatch):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     gsgs_blender.register()
     from gsgs_blender import preferences
 
-    old = preferences._FALLBACK.jobs_dir
-    preferences._FALLBACK.jobs_dir = str(tmp_path / "jobs")
+    # Without the add-on system the preferences are the fallback object: point it at this checkout.
+    monkeypatch.setattr(preferences._FALLBACK, "jobs_dir", str(tmp_path / "jobs"))
+    monkeypatch.setattr(preferences._FALLBACK, "python_path", sys.executable)
+    monkeypatch.setattr(preferences._FALLBACK, "engine_root", str(REPO))
     yield bpy.context.scene
-    preferences._FALLBACK.jobs_dir = old
     gsgs_blender.unregister()
     job_runner.RUNS.clear()
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -182,11 +183,7 @@ def test_check_engine_with_a_bad_interpreter(tmp_path):
 
 @pytest.mark.slow
 def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
-    from gsgs_blender import preferences
-
     scene = addon
-    preferences._FALLBACK.python_path = sys.executable
-    preferences._FALLBACK.engine_root = str(REPO)
     _lego_cameras(scene, ids=(0, 1, 2, 3, 4, 5))
     bpy.ops.gsgs.use_scene_cameras()
     scene.gsgs.iterations = 30
@@ -204,12 +201,9 @@ def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
 def test_import_photos_headless_creates_posed_cameras_and_points(addon):
     """Photos -> SfM job (real engine child) -> camera objects whose projection of the sparse points
     lands inside their photos, each photo as background, and the point cloud object."""
-    from gsgs_blender import preferences
     from gsgs_engine.job import Job
 
     scene = addon
-    preferences._FALLBACK.python_path = sys.executable
-    preferences._FALLBACK.engine_root = str(REPO)
     scene.gsgs.photos_dir = str(shared_scene("photos_santorini"))
     scene.gsgs.max_image_size = 480
     assert bpy.ops.gsgs.import_photos() == {"FINISHED"}  # headless: waits for the job
@@ -450,9 +444,6 @@ def fake_engine(tmp_path, monkeypatch):
     script = tmp_path / "fake_engine.py"
     script.write_text(FAKE_ENGINE)
     monkeypatch.setattr(job_runner, "engine_command", lambda python, job_dir: [sys.executable, str(script), str(job_dir)])
-    from gsgs_blender import preferences
-
-    monkeypatch.setattr(preferences._FALLBACK, "engine_root", str(REPO))
     return script
 
 
