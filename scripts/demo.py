@@ -85,16 +85,21 @@ def train_prior_options() -> tuple[list[str], str | None]:
                          capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"demo: `gsgs train --help` failed (exit {res.returncode}):\n{res.stderr.strip()}")
-    help_text = " ".join(res.stdout.split())  # argparse wraps lines
+    return parse_prior_help(res.stdout)
+
+
+def parse_prior_help(text: str) -> tuple[list[str], str | None]:
+    help_text = " ".join(text.split())  # argparse wraps lines
     m = re.search(r"--prior \{([^}]*)\}", help_text)
     choices = [c.strip() for c in m.group(1).split(",")] if m else []
-    d = re.search(r"--prior[^-]*?\(default:?\s*([\w.-]+)\)", help_text)
+    option = re.search(r"--prior\b(.*?)(?= --[a-z]|$)", help_text)  # this option's help, up to the next option
+    d = re.search(r"\(default:?\s*([\w.-]+)\)", option.group(1)) if option else None
     default = d.group(1) if d else None
     return choices, default
 
 
-def pick_prior(requested: str | None) -> str | None:
-    choices, default = train_prior_options()
+def pick_prior(requested: str | None, options: tuple[list[str], str | None] | None = None) -> str | None:
+    choices, default = options or train_prior_options()
     others = [c for c in choices if c != "none"]
     if requested is not None:
         if requested not in choices:
@@ -102,6 +107,8 @@ def pick_prior(requested: str | None) -> str | None:
         return None if requested == "none" else requested
     if default and default != "none" and default in others:
         return default
+    if "auto" in others:  # picks the best prior the machine has (diffusion with weights, else warping)
+        return "auto"
     return others[0] if others else None
 
 

@@ -399,3 +399,26 @@ def test_exporter_agrees_with_the_add_on_camera_conversion():
     assert (theirs.width, theirs.height) == (ours.width, ours.height)
     assert np.allclose([theirs.fx, theirs.fy, theirs.cx, theirs.cy], [ours.fx, ours.fy, ours.cx, ours.cy], atol=1e-6)
     assert np.allclose(theirs.R, ours.R, atol=1e-6) and np.allclose(theirs.t, ours.t, atol=1e-6)
+
+
+def test_demo_finds_the_default_prior_in_gsgs_train_help():
+    demo = _load_script("demo")
+    plain = "  --prior PRIOR         generative prior: none (plain 3DGS)\n  --seed SEED\n"
+    assert demo.parse_prior_help(plain) == ([], None)
+    assert demo.pick_prior(None, demo.parse_prior_help(plain)) is None
+    wrapped = ("  --prior {none,warp,diffusion,auto}\n                        generative prior, e.g. "
+               "warp-inpaint (default: auto)\n"
+               "  --seed SEED\n")
+    opts = demo.parse_prior_help(wrapped)
+    assert opts == (["none", "warp", "diffusion", "auto"], "auto")
+    assert demo.pick_prior(None, opts) == "auto"
+    assert demo.pick_prior(None, (["none", "warp"], "none")) == "warp"
+    assert demo.pick_prior("none", opts) is None and demo.pick_prior("warp", opts) == "warp"
+    with pytest.raises(SystemExit, match="not offered"):
+        demo.pick_prior("magic", opts)
+    table = demo.metrics_table([{"run": "baseline", "prior": "none", "ok": True, "wall_seconds": 61.2, "metrics": {
+        "psnr": 21.5, "ssim": 0.81234, "lpips": None, "num_gaussians": 1234, "iterations": 500, "train_seconds": 55.0}},
+        {"run": "prior_warp", "prior": "warp", "ok": False, "wall_seconds": 3.0}])
+    rows = table.splitlines()
+    assert rows[2] == "| baseline | none | 21.50 | 0.8123 | n/a | 1234 | 500 | 55 | 61 |"
+    assert rows[3].endswith("| 3 (failed) |") and rows[1].count("---") == 9
