@@ -1,0 +1,209 @@
+"""`gsgs bench dynamic --cameras N --out DIR`: 4D vs two static baselines on the 4D validation scene.
+
+Renders the project's animated Blender scene (gsgs_blender.dynamic_scene; reused when a matching
+render is in DIR/scene or --data), trains on N training cameras (camera 0 held out, N evenly
+from the rest, every frame) and evaluates each model on the held-out camera at every frame:
+  4d               one SpacetimeModel over all frames (rendered at each view's time)
+  static_all       one 3D model over all frames (time ignored)
+  static_per_frame one 3D model per frame, trained on that frame's N views
+PSNR / SSIM are averaged over time; train_seconds is the training loop's wall time (per-frame:
+summed over frames). Writes DIR/results.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+VARIANTS = ("4d", "static_all", "static_per_frame")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--cameras", type=int, default=3, help="training cameras (3, 6 or 9 in the paper's protocol)")
+    parser.add_argument("--out", required=True, help="output folder (results.json, renders, the rendered scene)")
+    parser.add_argument("--data", default=None, help="a dynamic scene folder to use instead of rendering one "
+                                                      "(default: DIR/scene, rendered when missing)")
+    parser.add_argument("--ring", type=int, default=10, help="cameras in the rendered ring (camera 0 is held out)")
+    parser.add_argument("--frames", type=int, default=10, help="frames rendered / used")
+    parser.add_argument("--size", type=int, default=64, help="rendered image size in pixels (square)")
+    parser.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel")
+    parser.add_argument("--iters", type=int, default=600, help="training steps of the 4D and static_all models")
+    parser.add_argument("--per-frame-iters", type=int, default=200, help="training steps of each per-frame model")
+    parser.add_argument("--init", default="random", choices=("random", "auto"),
+                        help="random (default, same box for every model) or auto (triangulate, per frame for 4D)")
+    parser.add_argument("--init-points", type=int, default=2000, help="random initial Gaussians")
+    parser.add_argument("--sh-degree", type=int, default=0)
+    parser.add_argument("--backend", default="auto", choices=("auto", "reference", "cpu", "cuda"))
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def render_scene(data_dir: Path, ring: int, frames: int, size: int, samples: int) -> None:
+    """Render the validation scene in a child process (gsgs_engine never imports bpy itself)."""
+    if importlib.util.find_spec("bpy") is None:
+        from gsgs_engine import GsgsError
+
+        raise GsgsError(f"{data_dir}: no rendered dynamic scene and this Python has no bpy module; render it with "
+                        f"`python -m gsgs_blender.dynamic_scene {data_dir}` where bpy is installed, or pass --data")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO_ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    cmd = [sys.executable, "-m", "gsgs_blender.dynamic_scene", str(data_dir), "--cameras", str(ring),
+           "--frames", str(frames), "--size", str(size), "--samples", str(samples)]
+    proc = subprocess.run(cmd, env=env, cwd=str(REPO_ROOT), capture_output=True, text=True)
+    if proc.returncode != 0:
+        from gsgs_engine import GsgsError
+
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise GsgsError(f"{data_dir}: rendering the dynamic scene failed ({' | '.join(tail)})")
+
+
+def _subscene(scene, train_idx: list[int], test_idx: list[int]):
+    """A Scene with only the given views (train / test splits), sharing the View objects."""
+    from gsgs_engine.io.scene import Scene
+
+    keep = sorted(set(train_idx) | set(test_idx))
+    pos = {old: new for new, old in enumerate(keep)}
+    return Scene(views=[scene.views[i] for i in keep],
+                 splits={"train": [pos[i] for i in train_idx], "test": [pos[i] for i in test_idx]},
+                 source=scene.source, format=scene.format, background=scene.background, near=scene.near,
+                 far=scene.far, has_alpha=scene.has_alpha)
+
+
+def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str) -> dict:
+    from gsgs_engine.train.evaluate import evaluate_views
+
+    trainer.setup()
+    trainer.train()
+    ev = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree), test_views,
+                        renders_dir=renders_dir)
+    log(f"[bench dynamic] {label}: {trainer.step} steps, {trainer.train_seconds:.1f}s, "
+        f"{trainer.model.num_gaussians} Gaussians, held-out PSNR {ev['psnr']:.2f}")
+    return {"psnr": ev["psnr"], "ssim": ev["ssim"], "train_seconds": trainer.train_seconds,
+            "iters": trainer.step, "num_gaussians": trainer.model.num_gaussians, "init": trainer.init_info.to_dict(),
+            "per_view": [{"name": v["name"], "time": t.camera.time, "psnr": v["psnr"], "ssim": v["ssim"]}
+                         for v, t in zip(ev["per_view"], test_views)]}
+
+
+def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
+                      init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
+                      log=print) -> dict:
+    """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
+    from gsgs_engine import GsgsError
+    from gsgs_engine.io.ply import write_gaussian_ply
+    from gsgs_engine.train.dynamic import SpacetimeTrainer, views_by_frame
+    from gsgs_engine.train.trainer import TrainConfig, Trainer
+
+    if not scene.test:
+        raise GsgsError(f"{scene.source}: no held-out views to evaluate on")
+    out_dir = Path(out_dir)
+
+    def config(n_iters: int) -> TrainConfig:
+        return TrainConfig(iters=n_iters, sh_degree=sh_degree, backend=backend, seed=seed, init=init,
+                           random_init_points=init_points, checkpoint_every=0)
+
+    results: dict = {}
+    trainer = SpacetimeTrainer(scene, config(iters), log=log)
+    results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d")
+    (out_dir / "4d").mkdir(parents=True, exist_ok=True)
+    write_gaussian_ply(out_dir / "4d" / "point_cloud.ply", trainer.model.to_ply())
+
+    trainer = Trainer(scene, config(iters), log=log)  # the plain 3D trainer ignores camera.time
+    results["static_all"] = _train_eval(trainer, scene.test, out_dir / "renders" / "static_all", log, "static_all")
+
+    train_frames = views_by_frame(scene.train)
+    test_frames = views_by_frame(scene.test)
+    index = {id(v): i for i, v in enumerate(scene.views)}
+    per = {"per_view": [], "train_seconds": 0.0, "iters": 0, "num_gaussians": 0, "models": 0}
+    for t, test_views in test_frames.items():
+        if t not in train_frames:
+            raise GsgsError(f"{scene.source}: the held-out camera has a frame at t={t:.3f} that no training "
+                            "camera has; the per-frame baseline needs every frame in the training cameras")
+        sub = _subscene(scene, [index[id(v)] for v in train_frames[t]], [index[id(v)] for v in test_views])
+        trainer = Trainer(sub, config(per_frame_iters), log=lambda msg: None)
+        r = _train_eval(trainer, sub.test, out_dir / "renders" / "static_per_frame" / f"t{t:.3f}", log,
+                        f"static_per_frame t={t:.3f}")
+        per["per_view"].extend(r["per_view"])
+        per["train_seconds"] += r["train_seconds"]
+        per["iters"] += r["iters"]
+        per["num_gaussians"] += r["num_gaussians"]
+        per["models"] += 1
+    import numpy as np
+
+    per["psnr"] = float(np.mean([v["psnr"] for v in per["per_view"]]))
+    per["ssim"] = float(np.mean([v["ssim"] for v in per["per_view"]]))
+    results["static_per_frame"] = per
+    return results
+
+
+def format_table(results: dict) -> str:
+    rows = [f"{'model':<18}{'PSNR':>8}{'SSIM':>8}{'train s':>10}{'steps':>8}{'Gaussians':>11}"]
+    for name in VARIANTS:
+        r = results[name]
+        rows.append(f"{name:<18}{r['psnr']:>8.2f}{r['ssim']:>8.4f}{r['train_seconds']:>10.1f}{r['iters']:>8d}"
+                    f"{r['num_gaussians']:>11d}")
+    return "\n".join(rows)
+
+
+def run(args) -> int:
+    from gsgs_engine import GsgsError
+    from gsgs_engine.io.dynamic import load_dynamic_scene
+    from gsgs_engine.job import write_json_atomic
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.cameras < 1:
+        raise GsgsError(f"--cameras must be at least 1 (got {args.cameras})")
+    if args.iters < 1 or args.per_frame_iters < 1:
+        raise GsgsError("--iters and --per-frame-iters must be at least 1")
+    rendered = None
+    if args.data is not None:
+        data = Path(args.data)
+    else:
+        data = out / "scene"
+        if not _rendered_matches(data, args.ring, args.frames, args.size):
+            print(f"[bench dynamic] rendering the validation scene ({args.ring} cameras x {args.frames} frames, "
+                  f"{args.size} px, {args.samples} samples) into {data}", flush=True)
+            t0 = time.perf_counter()
+            render_scene(data, args.ring, args.frames, args.size, args.samples)
+            rendered = time.perf_counter() - t0
+        else:
+            print(f"[bench dynamic] reusing the rendered scene in {data}", flush=True)
+    scene = load_dynamic_scene(data, train_cameras=args.cameras, max_frames=args.frames)
+    train_cams = sorted({v.camera.extra["camera_index"] for v in scene.train})
+    print(f"[bench dynamic] {len(scene.train)} training views (cameras {train_cams}), {len(scene.test)} held-out "
+          f"views (camera 0)", flush=True)
+    log = lambda msg: print(msg, flush=True)  # noqa: E731
+    results = run_dynamic_bench(scene, out, args.iters, args.per_frame_iters, args.init, args.init_points,
+                                args.sh_degree, args.backend, args.seed, log=log)
+    first = scene.test[0].camera
+    results["setup"] = {"data": str(data), "train_cameras": train_cams, "test_camera": 0,
+                        "frames": len({v.camera.time for v in scene.test}), "resolution": [first.width, first.height],
+                        "iters": args.iters, "per_frame_iters": args.per_frame_iters, "init": args.init,
+                        "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
+                        "seed": args.seed, "render_seconds": rendered,
+                        "metric": "PSNR / SSIM on the held-out camera, averaged over every frame"}
+    write_json_atomic(out / "results.json", results)
+    print(format_table(results))
+    print(f"[bench dynamic] wrote {out / 'results.json'}")
+    return 0
+
+
+def _rendered_matches(data: Path, ring: int, frames: int, size: int) -> bool:
+    """A complete render of the validation scene with these settings is in `data` (so it is reused)."""
+    try:
+        meta = json.loads((data / "transforms.json").read_text())
+    except (OSError, ValueError):
+        return False
+    if meta.get("generator") != "gsgs_blender.dynamic_scene":
+        return False
+    if meta.get("cameras") != ring or meta.get("num_frames") != frames or meta.get("w") != size:
+        return False
+    return all((data / (f["file_path"] + ".png")).is_file() for f in meta.get("frames", []))
+
+
+__all__ = ["add_arguments", "run", "run_dynamic_bench", "format_table", "render_scene"]
