@@ -47,6 +47,8 @@ constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
 #define GSGS_HOT
 #endif
 #define GSGS_INLINE inline __attribute__((always_inline))
+// Vector helpers are always inlined, so their 32-byte arguments never cross a call boundary.
+#pragma GCC diagnostic ignored "-Wpsabi"
 
 // One visible Gaussian, in depth order, everything the tile loops read (one 48-byte record).
 struct Splat {
@@ -58,31 +60,54 @@ struct Splat {
   float ext_x, ext_y;  // half-extent of the region where alpha >= 1/255 (+margin); < 0: never
 };
 
-GSGS_INLINE float bits_to_float(int32_t v) {
-  float f;
-  std::memcpy(&f, &v, sizeof f);
-  return f;
+// Eight float lanes (GCC/Clang vector extensions): one AVX register in the AVX2 clone, two SSE
+// registers in the portable one. Explicit vectors, because GCC leaves the masked lane loops scalar.
+typedef float vf __attribute__((vector_size(32), aligned(32)));
+typedef int32_t vi __attribute__((vector_size(32), aligned(32)));
+constexpr int kLanes = 8;
+constexpr int kVecPerRow = kTile / kLanes;
+constexpr int kVecs = kTilePixels / kLanes;
+
+GSGS_INLINE vf splat(float v) { return vf{} + v; }
+GSGS_INLINE vi splat_i(int32_t v) { return vi{} + v; }
+GSGS_INLINE vf select(vi mask, vf a, vf b) { return (vf)(((vi)a & mask) | ((vi)b & ~mask)); }
+GSGS_INLINE vi select_i(vi mask, vi a, vi b) { return (a & mask) | (b & ~mask); }
+GSGS_INLINE bool any(vi mask) {
+  uint64_t q[4];
+  std::memcpy(q, &mask, sizeof q);
+  return (q[0] | q[1] | q[2] | q[3]) != 0;
+}
+GSGS_INLINE float hsum(vf v) {
+  float s = 0.0f;
+  for (int i = 0; i < kLanes; ++i) s += v[i];
+  return s;
 }
 
 // exp(x) for the alpha test, x clamped to [-87, 0] (NaN -> -87): Cephes' expf polynomial with
-// round-to-nearest range reduction, ~1 ulp, exp(0) == 1 exactly. Written so GCC vectorises it
-// without -ffast-math (libm's expf would keep the lane loops scalar).
-GSGS_INLINE float exp_nonpositive(float x) {
-  x = (x >= -87.0f) ? x : -87.0f;
-  x = (x < 0.0f) ? x : 0.0f;
-  const float t = x * 1.44269504088896341f;
-  const float n = (t + 12582912.0f) - 12582912.0f;  // round(t): 1.5 * 2^23 shifts out the fraction
-  float r = x - n * 0.693359375f;
+// round-to-nearest range reduction, ~1 ulp, exp(0) == 1 exactly. libm's expf cannot be vectorised
+// without -ffast-math.
+GSGS_INLINE vf exp_nonpositive(vf x) {
+  x = select(x >= -87.0f, x, splat(-87.0f));
+  x = select(x < 0.0f, x, splat(0.0f));
+  const vf t = x * 1.44269504088896341f;
+  const vf n = (t + 12582912.0f) - 12582912.0f;  // round(t): 1.5 * 2^23 shifts out the fraction
+  vf r = x - n * 0.693359375f;
   r = r - n * -2.12194440e-4f;
-  float p = 1.9875691500e-4f;
+  vf p = splat(1.9875691500e-4f);
   p = p * r + 1.3981999507e-3f;
   p = p * r + 8.3334519073e-3f;
   p = p * r + 4.1665795894e-2f;
   p = p * r + 1.6666665459e-1f;
   p = p * r + 5.0000001201e-1f;
-  const float y = p * r * r + r + 1.0f;
-  const int32_t e = static_cast<int32_t>(n) + 127;  // n in [-126, 0]: a normal power of two
-  return y * bits_to_float(e << 23);
+  const vf y = p * r * r + r + 1.0f;
+  const vi e = __builtin_convertvector(n, vi) + 127;  // n in [-126, 0]: a normal power of two
+  return y * (vf)(e << 23);
+}
+
+// Gaussian exponent at offsets (dx, dy) from the mean; forward and backward share it so both take
+// the same skip decisions bit for bit.
+GSGS_INLINE vf gaussian_power(float A, float B, float C, vf dx, float dy) {
+  return -0.5f * (A * dx * dx + C * dy * dy) - B * dx * dy;
 }
 
 // Row (or column) index range [lo, hi] inside a tile starting at pixel `start` whose centres lie
@@ -181,72 +206,96 @@ void for_each_tile(const std::vector<int32_t>& order, Fn&& fn) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Forward of one tile. Per-pixel state lives in lane arrays; each Gaussian updates the rows its
-// alpha ellipse reaches, 16 lanes at a time, branch-free.
+// Lane vectors of the pixel-centre x coordinates of a tile row.
+GSGS_INLINE void pixel_centres(int px0, vf* out) {
+  for (int v = 0; v < kVecPerRow; ++v)
+    for (int i = 0; i < kLanes; ++i) out[v][i] = static_cast<float>(px0 + v * kLanes + i) + 0.5f;
+}
+
+// Rows and lane vectors of the tile a Gaussian can reach (empty: r_lo > r_hi).
+GSGS_INLINE void reach(const Splat& s, int px0, int py0, int cols, int rows, int* r_lo, int* r_hi, int* v_lo,
+                       int* v_hi) {
+  *r_lo = 0;
+  *r_hi = -1;
+  if (s.ext_x < 0.0f) return;
+  int c_lo, c_hi;
+  lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
+  if (c_lo > c_hi) return;
+  *v_lo = c_lo / kLanes;
+  *v_hi = c_hi / kLanes;
+  lane_range(s.my, s.ext_y, py0, rows, r_lo, r_hi);
+}
+
+// Forward of one tile. Per-pixel state lives in lane vectors; each Gaussian updates only the rows
+// (and 8-lane halves) its alpha ellipse reaches, branch-free inside a row.
 GSGS_HOT void forward_tile(const Splat* splats, const int32_t* ranks, int count, int px0, int py0,
                            int width, int height, const float* background, float* out_color,
                            float* out_depth, float* out_alpha, float* out_T, int32_t* out_last) {
-  alignas(64) float T[kTilePixels], cr[kTilePixels], cg[kTilePixels], cb[kTilePixels], dep[kTilePixels];
-  alignas(64) float active[kTilePixels];
-  alignas(64) int32_t last[kTilePixels];
+  vf T[kVecs], cr[kVecs], cg[kVecs], cb[kVecs], dep[kVecs];
+  vi active[kVecs], last[kVecs];
   const int rows = std::min(kTile, height - py0);
   const int cols = std::min(kTile, width - px0);
-  int remaining = rows * cols;
-  for (int p = 0; p < kTilePixels; ++p) {
-    const int y = p / kTile, x = p % kTile;
-    T[p] = 1.0f;
-    cr[p] = cg[p] = cb[p] = dep[p] = 0.0f;
-    active[p] = (y < rows && x < cols) ? 1.0f : 0.0f;
-    last[p] = 0;
+  for (int v = 0; v < kVecs; ++v) {
+    T[v] = splat(1.0f);
+    cr[v] = cg[v] = cb[v] = dep[v] = splat(0.0f);
+    last[v] = splat_i(0);
+    for (int i = 0; i < kLanes; ++i) {
+      const int p = v * kLanes + i;
+      active[v][i] = (p / kTile < rows && p % kTile < cols) ? -1 : 0;  // pixels outside the image never blend
+    }
   }
-  alignas(64) float px[kTile];
-  for (int x = 0; x < kTile; ++x) px[x] = static_cast<float>(px0 + x) + 0.5f;
+  vf px[kVecPerRow];
+  pixel_centres(px0, px);
 
-  for (int j = 0; j < count && remaining > 0; ++j) {
+  for (int j = 0; j < count; ++j) {
     const Splat s = splats[ranks[j]];
-    if (s.ext_x < 0.0f) continue;
-    int c_lo, c_hi, r_lo, r_hi;
-    lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
-    if (c_lo > c_hi) continue;
-    lane_range(s.my, s.ext_y, py0, rows, &r_lo, &r_hi);
-    int stopped = 0;
+    int r_lo, r_hi, v_lo = 0, v_hi = -1;
+    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    vi stopped = splat_i(0);
+    const vi contributor = splat_i(j + 1);
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
-      const int base = row * kTile;
-      for (int x = 0; x < kTile; ++x) {
-        const int p = base + x;
-        const float dx = s.mx - px[x];
-        const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
-        const float alpha = std::min(kMaxAlpha, s.opacity * exp_nonpositive(power));
-        const bool valid = active[p] != 0.0f && power <= 0.0f && alpha >= kMinAlpha;
-        const float test_T = T[p] * (1.0f - alpha);
-        const bool stop = valid && test_T < kMinTransmittance;
-        const bool add = valid && !stop;
-        const float w = add ? alpha * T[p] : 0.0f;
-        cr[p] += s.r * w;
-        cg[p] += s.g * w;
-        cb[p] += s.b * w;
-        dep[p] += s.depth * w;
-        T[p] = add ? test_T : T[p];
-        last[p] = add ? j + 1 : last[p];
-        active[p] = stop ? 0.0f : active[p];
-        stopped += stop ? 1 : 0;
+      for (int h = v_lo; h <= v_hi; ++h) {
+        const int v = row * kVecPerRow + h;
+        if (!any(active[v])) continue;  // these 8 pixels are finished
+        const vf dx = s.mx - px[h];
+        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        const vf oG = s.opacity * exp_nonpositive(power);
+        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vi valid = active[v] & (power <= 0.0f) & (alpha >= kMinAlpha);
+        const vf test_T = T[v] * (1.0f - alpha);
+        const vi stop = valid & (test_T < kMinTransmittance);
+        const vi add = valid & ~stop;
+        const vf w = select(add, alpha * T[v], splat(0.0f));
+        cr[v] += s.r * w;
+        cg[v] += s.g * w;
+        cb[v] += s.b * w;
+        dep[v] += s.depth * w;
+        T[v] = select(add, test_T, T[v]);
+        last[v] = select_i(add, contributor, last[v]);
+        active[v] &= ~stop;
+        stopped |= stop;
       }
     }
-    remaining -= stopped;
+    if (any(stopped)) {  // some pixel just finished: is the whole tile done?
+      vi still = splat_i(0);
+      for (int v = 0; v < kVecs; ++v) still |= active[v];
+      if (!any(still)) break;
+    }
   }
 
   for (int y = 0; y < rows; ++y) {
     for (int x = 0; x < cols; ++x) {
-      const int p = y * kTile + x;
+      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
       const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
-      out_color[o * 3 + 0] = cr[p] + T[p] * background[0];
-      out_color[o * 3 + 1] = cg[p] + T[p] * background[1];
-      out_color[o * 3 + 2] = cb[p] + T[p] * background[2];
-      out_depth[o] = dep[p];
-      out_alpha[o] = 1.0f - T[p];
-      out_T[o] = T[p];
-      out_last[o] = last[p];
+      const float t = T[v][i];
+      out_color[o * 3 + 0] = cr[v][i] + t * background[0];
+      out_color[o * 3 + 1] = cg[v][i] + t * background[1];
+      out_color[o * 3 + 2] = cb[v][i] + t * background[2];
+      out_depth[o] = dep[v][i];
+      out_alpha[o] = 1.0f - t;
+      out_T[o] = t;
+      out_last[o] = last[v][i];
     }
   }
 }
@@ -260,94 +309,85 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
                             int px0, int py0, int width, int height, const float* background,
                             const float* final_T, const int32_t* last_in, const float* grad_color,
                             const float* grad_depth, const float* grad_alpha, float* entry_grad) {
-  alignas(64) float T[kTilePixels], Sr[kTilePixels], Sg[kTilePixels], Sb[kTilePixels], Sz[kTilePixels];
-  alignas(64) float gr[kTilePixels], gg[kTilePixels], gb[kTilePixels], gz[kTilePixels], K[kTilePixels];
-  alignas(64) int32_t last[kTilePixels];
+  vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
+  vi last[kVecs];
   const int rows = std::min(kTile, height - py0);
   const int cols = std::min(kTile, width - px0);
-  int max_last = 0;
-  for (int p = 0; p < kTilePixels; ++p) {
-    T[p] = 1.0f;
-    Sr[p] = Sg[p] = Sb[p] = Sz[p] = 0.0f;
-    gr[p] = gg[p] = gb[p] = gz[p] = K[p] = 0.0f;
-    last[p] = 0;  // pixels outside the image never take part
+  for (int v = 0; v < kVecs; ++v) {
+    T[v] = splat(1.0f);
+    Sr[v] = Sg[v] = Sb[v] = Sz[v] = splat(0.0f);
+    gr[v] = gg[v] = gb[v] = gz[v] = K[v] = splat(0.0f);
+    last[v] = splat_i(0);  // pixels outside the image never take part
   }
+  int max_last = 0;
   for (int y = 0; y < rows; ++y) {
     for (int x = 0; x < cols; ++x) {
-      const int p = y * kTile + x;
+      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
       const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
-      T[p] = final_T[o];
-      last[p] = last_in[o];
-      gr[p] = grad_color[o * 3 + 0];
-      gg[p] = grad_color[o * 3 + 1];
-      gb[p] = grad_color[o * 3 + 2];
-      gz[p] = grad_depth[o];
-      const float bg_dot = gr[p] * background[0] + gg[p] * background[1] + gb[p] * background[2];
-      K[p] = T[p] * (grad_alpha[o] - bg_dot);
-      max_last = std::max(max_last, last[p]);
+      const float t = final_T[o];
+      T[v][i] = t;
+      last[v][i] = last_in[o];
+      gr[v][i] = grad_color[o * 3 + 0];
+      gg[v][i] = grad_color[o * 3 + 1];
+      gb[v][i] = grad_color[o * 3 + 2];
+      gz[v][i] = grad_depth[o];
+      const float bg_dot = grad_color[o * 3 + 0] * background[0] + grad_color[o * 3 + 1] * background[1] +
+                           grad_color[o * 3 + 2] * background[2];
+      K[v][i] = t * (grad_alpha[o] - bg_dot);
+      max_last = std::max(max_last, last_in[o]);
     }
   }
-  alignas(64) float px[kTile];
-  for (int x = 0; x < kTile; ++x) px[x] = static_cast<float>(px0 + x) + 0.5f;
+  vf px[kVecPerRow];
+  pixel_centres(px0, px);
 
   for (int j = count - 1; j >= 0; --j) {
     float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
     const Splat s = splats[ranks[j]];
-    int c_lo = 0, c_hi = -1, r_lo = 0, r_hi = -1;
-    if (j < max_last && s.ext_x >= 0.0f) {
-      lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
-      if (c_lo <= c_hi) lane_range(s.my, s.ext_y, py0, rows, &r_lo, &r_hi);
-    }
-    if (r_lo > r_hi) {
-      for (int f = 0; f < kGradFields; ++f) record[f] = 0.0f;
-      continue;
-    }
-    alignas(64) float acc[kGradFields][kTile];
-    for (int f = 0; f < kGradFields; ++f)
-      for (int x = 0; x < kTile; ++x) acc[f][x] = 0.0f;
+    int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
+    if (j < max_last) reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    vf acc[kGradFields];
+    for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
+    const vi position = splat_i(j);
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
-      const int base = row * kTile;
-      for (int x = 0; x < kTile; ++x) {
-        const int p = base + x;
-        const float dx = s.mx - px[x];
-        const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
-        const float G = exp_nonpositive(power);
-        const float oG = s.opacity * G;
-        const float alpha = std::min(kMaxAlpha, oG);
-        const bool valid = j < last[p] && power <= 0.0f && alpha >= kMinAlpha;
-        const float one_minus = 1.0f - alpha;
-        const float T_before = T[p] / one_minus;
-        const float w = alpha * T_before;
-        const float dL_dalpha = T_before * (gr[p] * (s.r - Sr[p]) + gg[p] * (s.g - Sg[p]) +
-                                            gb[p] * (s.b - Sb[p]) + gz[p] * (s.depth - Sz[p])) +
-                                K[p] / one_minus;
+      for (int h = v_lo; h <= v_hi; ++h) {
+        const int v = row * kVecPerRow + h;
+        const vi listed = position < last[v];  // j blended into these pixels' colour (if valid)
+        if (!any(listed)) continue;
+        const vf dx = s.mx - px[h];
+        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        const vf G = exp_nonpositive(power);
+        const vf oG = s.opacity * G;
+        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
+        if (!any(valid)) continue;
+        const vf one_minus = 1.0f - alpha;
+        const vf T_before = T[v] / one_minus;
+        const vf w = select(valid, alpha * T_before, splat(0.0f));
+        const vf dL_dalpha = T_before * (gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]) +
+                                         gz[v] * (s.depth - Sz[v])) +
+                             K[v] / one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
-        const float dL_doG = (valid && oG <= kMaxAlpha) ? dL_dalpha : 0.0f;
-        const float dL_dpower = dL_doG * oG;
-        const float wv = valid ? w : 0.0f;
-        acc[0][x] += dL_dpower * -(s.A * dx + s.B * dy);
-        acc[1][x] += dL_dpower * -(s.B * dx + s.C * dy);
-        acc[2][x] += dL_dpower * (-0.5f * dx * dx);
-        acc[3][x] += dL_dpower * (-dx * dy);
-        acc[4][x] += dL_dpower * (-0.5f * dy * dy);
-        acc[5][x] += gr[p] * wv;
-        acc[6][x] += gg[p] * wv;
-        acc[7][x] += gb[p] * wv;
-        acc[8][x] += dL_doG * G;
-        acc[9][x] += gz[p] * wv;
-        Sr[p] = valid ? alpha * s.r + one_minus * Sr[p] : Sr[p];
-        Sg[p] = valid ? alpha * s.g + one_minus * Sg[p] : Sg[p];
-        Sb[p] = valid ? alpha * s.b + one_minus * Sb[p] : Sb[p];
-        Sz[p] = valid ? alpha * s.depth + one_minus * Sz[p] : Sz[p];
-        T[p] = valid ? T_before : T[p];
+        const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
+        const vf dL_dpower = dL_doG * oG;
+        acc[0] += dL_dpower * -(s.A * dx + s.B * dy);
+        acc[1] += dL_dpower * -(s.B * dx + s.C * dy);
+        acc[2] += dL_dpower * (-0.5f * dx * dx);
+        acc[3] += dL_dpower * (-dx * dy);
+        acc[4] += dL_dpower * (-0.5f * dy * dy);
+        acc[5] += gr[v] * w;
+        acc[6] += gg[v] * w;
+        acc[7] += gb[v] * w;
+        acc[8] += dL_doG * G;
+        acc[9] += gz[v] * w;
+        Sr[v] = select(valid, alpha * s.r + one_minus * Sr[v], Sr[v]);
+        Sg[v] = select(valid, alpha * s.g + one_minus * Sg[v], Sg[v]);
+        Sb[v] = select(valid, alpha * s.b + one_minus * Sb[v], Sb[v]);
+        Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
+        T[v] = select(valid, T_before, T[v]);
       }
     }
-    for (int f = 0; f < kGradFields; ++f) {
-      float sum = 0.0f;
-      for (int x = 0; x < kTile; ++x) sum += acc[f][x];
-      record[f] = sum;
-    }
+    for (int f = 0; f < kGradFields; ++f) record[f] = hsum(acc[f]);
   }
 }
 
