@@ -294,3 +294,15 @@ def test_backend_matches_reference(backend):
         torch.testing.assert_close(getattr(got[0], field), getattr(ref[0], field), atol=1e-4, rtol=1e-4)
     for g, r in zip(got[1], ref[1]):
         torch.testing.assert_close(g, r, atol=1e-3, rtol=1e-3)
+
+
+def test_bench_cell_measures_a_row_and_tabulates():
+    from gsgs_engine.render.bench import markdown_table, run_cell
+    row = run_cell("reference", 50, 32, repeats=2, budget_s=60.0, seed=0, threads=None)
+    assert {"backend", "gaussians", "width", "height", "forward_ms", "forward_backward_ms", "peak_mb"} <= set(row)
+    assert row["gaussians"] == 50 and row["width"] == row["height"] == 32
+    assert 0 < row["forward_ms"] and 0 < row["forward_backward_ms"] and row["peak_mb"] >= 0
+    skipped = run_cell("reference", 50, 32, repeats=2, budget_s=0.0, seed=0, threads=None)
+    assert skipped["forward_ms"] is None and skipped["note"].startswith("skipped: over budget")
+    table = markdown_table([{**row, "speedup_vs_reference": 1.0}, {**skipped, "speedup_vs_reference": None}])
+    assert table.count("\n") == 3 and "| reference | 50 | 32x32 |" in table and "skipped: over budget" in table
