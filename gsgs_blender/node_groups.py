@@ -13,7 +13,7 @@ import bpy
 
 GROUP_NAME = "GS-GS Splats"
 MATERIAL_NAME = "GS-GS Splat"
-GROUP_VERSION = 1  # bump when the graph changes so old files rebuild it
+GROUP_VERSION = 2  # bump when the graph changes so old files rebuild it
 
 
 def _socket(group, name: str, in_out: str, socket_type: str, default=None, min_value=None, max_value=None,
@@ -44,7 +44,7 @@ def _input(node, name: str, socket_type: str | None = None):
 
 
 def splat_material() -> bpy.types.Material:
-    """Emission coloured by the splat colour, mixed with transparency by its opacity."""
+    """Emission coloured by the splat colour, mixed with transparency by its opacity (front faces)."""
     mat = bpy.data.materials.get(MATERIAL_NAME)
     if mat is not None and mat.get("gsgs_version") == GROUP_VERSION:
         return mat
@@ -68,8 +68,22 @@ def splat_material() -> bpy.types.Material:
     mix.location = (0, 150)
     out = nodes.new("ShaderNodeOutputMaterial")
     out.location = (250, 150)
+    # Only the front of each proxy sphere shows the splat: a ray through a sphere crosses two
+    # surfaces, and counting opacity on both would turn alpha a into 1 - (1 - a)^2.
+    geometry = nodes.new("ShaderNodeNewGeometry")
+    geometry.location = (-800, 500)
+    front = nodes.new("ShaderNodeMath")
+    front.operation = "SUBTRACT"
+    front.inputs[0].default_value = 1.0
+    front.location = (-600, 550)
+    alpha = nodes.new("ShaderNodeMath")
+    alpha.operation = "MULTIPLY"
+    alpha.location = (-300, 400)
+    links.new(geometry.outputs["Backfacing"], front.inputs[1])
+    links.new(_output(opacity, "Factor"), alpha.inputs[0])
+    links.new(front.outputs["Value"], alpha.inputs[1])
     links.new(_output(color, "Color"), emission.inputs["Color"])
-    links.new(_output(opacity, "Factor"), mix.inputs[0])
+    links.new(alpha.outputs["Value"], mix.inputs[0])
     links.new(transparent.outputs["BSDF"], mix.inputs[1])
     links.new(emission.outputs["Emission"], mix.inputs[2])
     links.new(mix.outputs["Shader"], out.inputs["Surface"])

@@ -140,3 +140,41 @@ def test_million_splats_import_in_seconds(tmp_path):
     print(f"\n1,000,000 splats (SH degree 3): import_splats {seconds:.2f} s (wall {wall:.2f} s)")
     assert len(obj.data.vertices) == 1_000_000
     assert seconds < 30.0
+
+
+def test_render_shows_splat_colour_and_opacity(tmp_path, empty_scene):
+    """Cycles render through the material: an opaque red splat renders red, a 50 % green one half
+    green over black, each at the pixel the engine's camera projects its centre to."""
+    from gsgs_blender import camera_convert
+    from gsgs_engine.cameras import Camera, look_at
+
+    scene = empty_scene
+    try:
+        scene.render.engine = "CYCLES"
+    except TypeError:
+        pytest.skip("Cycles is not in this Blender build")
+    dc = lambda rgb: (np.array(rgb, float) - 0.5) / splat_import.SH_C0  # noqa: E731
+    g = GaussianPly(positions=[[-0.6, 0, 0], [0.6, 0, 0]], opacity_logits=[12.0, 0.0],
+                    log_scales=np.log(np.full((2, 3), 0.4)), quats_wxyz=[[1, 0, 0, 0], [1, 0, 0, 0]],
+                    sh_dc=[dc([1, 0, 0]), dc([0, 1, 0])], sh_rest=np.zeros((2, 0, 3)))
+    write_gaussian_ply(tmp_path / "two.ply", g)
+    splat_import.import_splats(tmp_path / "two.ply", max_display=0)
+    R, t = look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3))
+    cam = Camera(R=R, t=t, fx=40, fy=40, cx=32, cy=16, width=64, height=32)
+    cam_obj = camera_convert.new_camera_object(cam, scene.collection, scene)
+    camera_convert.apply_camera_to_object(cam, cam_obj, scene, set_scene_frame=True)
+    scene.camera = cam_obj
+    scene.cycles.samples = 16
+    scene.cycles.device = "CPU"
+    scene.cycles.use_denoising = False  # the denoiser overshoots on a 64 x 32 image
+    scene.world = None  # no world: a black background
+    scene.view_settings.view_transform = "Standard"
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(tmp_path / "render.exr")
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(tmp_path / "render.exr"))
+    px = np.array(img.pixels[:], dtype=np.float32).reshape(32, 64, 4)[::-1]  # Blender stores bottom row first
+    (u_red, v_red), (u_green, v_green) = cam.project(np.asarray(g.positions))[0]
+    np.testing.assert_allclose(px[int(v_red), int(u_red), :3], [1.0, 0.0, 0.0], atol=0.02)
+    np.testing.assert_allclose(px[int(v_green), int(u_green), :3], [0.0, 0.5, 0.0], atol=0.02)
+    assert px[2, 32, :3].max() < 0.01  # background between and above the splats stays black
