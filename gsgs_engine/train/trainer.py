@@ -31,9 +31,9 @@ from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_p
 from gsgs_engine.train.losses import photometric_terms, total_loss
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
-# Measured on the 2-core dev machine (see the report in the repo notes): lego_200, 8 views,
-# cpu backend, finishes in about 10 minutes.
-DEFAULT_ITERS = 3000
+# About 0.5-1 CPU-second per step on lego_200 (200 px, a few thousand Gaussians, cpu backend,
+# 2 threads): 1000 steps fit the 10-minute budget of a free 2-core machine.
+DEFAULT_ITERS = 1000
 CHECKPOINT_FORMAT = 1
 
 
