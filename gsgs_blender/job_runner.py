@@ -136,7 +136,10 @@ class JobRun:
             elif self.terminate_at is not None and now - self.terminate_at > KILL_GRACE_S:
                 self.process.kill()
             return new
-        new += self._reader.poll()  # lines written just before exit
+        last = self._reader.poll()  # lines written just before exit
+        if last:
+            self.events += len(last)
+            new += last
         if new:
             self.last_event = new[-1]
         status = read_status(self.job_dir) or {}
@@ -177,7 +180,14 @@ class JobRun:
             if self.finished:
                 return self.state
             if timeout is not None and time.monotonic() - start > timeout:
-                raise GsgsError(f"{self.job_dir}: job still running after {timeout:.0f} s; see {self.job_dir / 'log.txt'}")
+                # Never leave an orphaned engine behind: cancel, and terminate after the grace period.
+                self.request_cancel()
+                give_up = time.monotonic() + CANCEL_GRACE_S + KILL_GRACE_S + 5.0
+                while not self.finished and time.monotonic() < give_up:
+                    self.poll()
+                    time.sleep(interval)
+                raise GsgsError(f"{self.job_dir}: job still running after {timeout:.0f} s, so it was "
+                                f"{self.state}; see {self.job_dir / 'log.txt'}")
             time.sleep(interval)
 
 

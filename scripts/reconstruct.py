@@ -38,7 +38,6 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--depth-adapter", default="", help="local depth T2I-Adapter folder (diffusers)")
     p.add_argument("--pseudo-views", type=int, default=16, help="pseudo poses along a path through the cameras "
                                                                 "(0: none)")
-    p.add_argument("--timeout", type=float, default=None, help="give up on a job after this many seconds")
     return p.parse_args(argv)
 
 

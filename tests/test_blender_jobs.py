@@ -171,3 +171,11 @@ def test_real_sfm_job_progress_and_cancel(tmp_path):
     print(f"\nSfM cancelled {time.monotonic() - t0:.1f} s after the request: {run.message}")
     assert Job.open(job.root).status()["state"] == "cancelled"
     assert not (job.root / "result" / "cameras.json").exists()
+
+
+def test_wait_timeout_cancels_the_job(fake):
+    job_dir, cmd = fake("ok", steps=10_000)
+    run = _start(job_dir, cmd)
+    with pytest.raises(GsgsError, match="still running after 0 s, so it was cancelled"):
+        run.wait(timeout=0.3)
+    assert run.process.poll() is not None
