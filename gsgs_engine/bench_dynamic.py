@@ -41,6 +41,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sh-degree", type=int, default=0)
     parser.add_argument("--backend", default="auto", choices=("auto", "reference", "cpu", "cuda"))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
 
 def render_scene(data_dir: Path, ring: int, frames: int, size: int, samples: int) -> None:
@@ -156,6 +157,10 @@ def run(args) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.threads > 0:
+        import torch
+
+        torch.set_num_threads(args.threads)
     if args.cameras < 1:
         raise GsgsError(f"--cameras must be at least 1 (got {args.cameras})")
     if args.iters < 1 or args.per_frame_iters < 1:
@@ -185,7 +190,7 @@ def run(args) -> int:
                         "frames": len({v.camera.time for v in scene.test}), "resolution": [first.width, first.height],
                         "iters": args.iters, "per_frame_iters": args.per_frame_iters, "init": args.init,
                         "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
-                        "seed": args.seed, "render_seconds": rendered,
+                        "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
                         "metric": "PSNR / SSIM on the held-out camera, averaged over every frame"}
     write_json_atomic(out / "results.json", results)
     print(format_table(results))

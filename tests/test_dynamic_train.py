@@ -1,0 +1,248 @@
+"""4D training: the trainer that a scene with time gets, init across time, time-aware densification,
+checkpoints, pseudo views at (pose, time), and the dynamic bench on a tiny synthetic clip."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cameras import Camera, look_at, nerf_c2w_from_camera
+from gsgs_engine.gaussians import GaussianModel
+from gsgs_engine.io.dynamic import load_dynamic_scene
+from gsgs_engine.spacetime import SpacetimeModel, render_at
+from gsgs_engine.train.densify import DensifyConfig, DensifyStats
+from gsgs_engine.train.dynamic import (SpacetimeTrainer, densify_and_prune_4d, initialise_spacetime, make_trainer,
+                                       peak_opacity_in_clip)
+from gsgs_engine.train.trainer import PseudoView, TrainConfig, Trainer
+
+SIZE = 16
+
+
+def _ring(n):
+    cams = []
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        R, t = look_at((3 * np.cos(a), 3 * np.sin(a), 1.0), (0, 0, 0))
+        cams.append(Camera(R=R, t=t, fx=16.0, fy=16.0, cx=SIZE / 2, cy=SIZE / 2, width=SIZE, height=SIZE))
+    return cams
+
+
+def _ground_truth() -> SpacetimeModel:
+    """Two coloured blobs: one static, one moving along x over the clip."""
+    base = GaussianModel.from_points(np.array([[0.0, 0.0, -0.3], [-0.4, 0.0, 0.3]]), np.array([[0.9, 0.1, 0.1],
+                                                                                              [0.1, 0.2, 0.9]]), 0)
+    with torch.no_grad():
+        base.params["log_scales"].fill_(np.log(0.3))
+        base.params["opacity_logits"].fill_(3.0)
+    m = SpacetimeModel.from_static(base, [0.5, 0.0], [100.0, 100.0])
+    with torch.no_grad():
+        m.params["motion"][1, 0, 0] = 0.8  # 0.8 units per unit time along x
+    return m
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """NeRF JSON with time: 5 cameras x 3 frames rendered from the ground-truth 4D model."""
+    root = tmp_path_factory.mktemp("clip")
+    (root / "frames").mkdir()
+    gt, frames = _ground_truth(), []
+    for f, t in enumerate([0.0, 0.5, 1.0]):
+        for c, cam in enumerate(_ring(5)):
+            with torch.no_grad():
+                img = render_at(gt, replace(cam, time=t), torch.ones(3), backend="reference").color.numpy()
+            stem = f"frames/c{c}_f{f}"
+            cv2.imwrite(str(root / f"{stem}.png"), cv2.cvtColor((img * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
+            frames.append({"file_path": f"./{stem}", "transform_matrix": nerf_c2w_from_camera(cam).tolist(),
+                           "camera_id": c, "time": t})
+    (root / "transforms.json").write_text(json.dumps({"fl_x": 16.0, "fl_y": 16.0, "cx": SIZE / 2, "cy": SIZE / 2,
+                                                      "w": SIZE, "h": SIZE, "frames": frames}))
+    return root
+
+
+def _config(**kw):
+    base = dict(iters=30, sh_degree=0, init="random", random_init_points=60, checkpoint_every=0)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _strip_time(scene):
+    for v in scene.views:
+        v.camera = replace(v.camera, time=None)
+    return scene
+
+
+def test_a_4d_model_exists_only_when_the_data_has_time(clip):
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    trainer = make_trainer(scene, _config())
+    assert isinstance(trainer, SpacetimeTrainer)
+    trainer.setup()
+    assert isinstance(trainer.model, SpacetimeModel)
+    assert {g["name"] for g in trainer.optimizer.param_groups} >= {"t_center", "t_log_scale", "motion", "omega"}
+
+    static = _strip_time(load_dynamic_scene(clip, train_cameras=2))
+    trainer = make_trainer(static, _config())
+    assert type(trainer) is Trainer
+    trainer.setup()
+    assert type(trainer.model) is GaussianModel and "t_center" not in trainer.model.params
+    assert trainer.model.to_ply().extra == {}
+    with pytest.raises(GsgsError, match="carry no time"):
+        SpacetimeTrainer(static, _config())
+
+
+def test_random_init_spreads_gaussians_over_time(clip):
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    model, info = initialise_spacetime(scene, scene.train, _config(random_init_points=400), torch.Generator().manual_seed(0))
+    assert info.method == "random" and model.num_gaussians == 400
+    tc = model.t_center.detach()
+    assert float(tc.min()) >= 0 and float(tc.max()) <= 1 and 0.4 < float(tc.mean()) < 0.6
+
+
+def test_init_from_points_triangulated_per_frame(clip, monkeypatch):
+    import gsgs_engine.sfm as sfm
+
+    calls = []
+
+    def fake_triangulate(views):
+        t = views[0].camera.time
+        assert all(v.camera.time == t for v in views)  # one frame at a time
+        calls.append(t)
+        pts = np.random.default_rng(len(calls)).normal(size=(50, 3))
+        return pts, np.full((50, 3), 0.5)
+
+    monkeypatch.setattr(sfm, "triangulate_known_poses", fake_triangulate)
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    model, info = initialise_spacetime(scene, scene.train, _config(init="auto"), torch.Generator())
+    assert calls == [0.0, 0.5, 1.0] and info.method == "sfm" and model.num_gaussians == 150
+    assert sorted(set(model.t_center.detach().tolist())) == [0.0, 0.5, 1.0]
+    assert torch.allclose(model.t_scale, torch.full((150,), 1.0))  # two frame spacings of 0.5
+
+
+def _trainer_with_model(clip, model):
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    trainer = SpacetimeTrainer(scene, _config())
+    trainer.setup(initial_model=model)
+    return trainer
+
+
+def test_densify_clones_and_splits_carry_temporal_params(clip):
+    base = GaussianModel.from_points(np.array([[0.0, 0, 0], [0.5, 0, 0], [0, 0.5, 0]]), None, 0)
+    with torch.no_grad():
+        base.params["log_scales"].copy_(torch.log(torch.tensor([[0.001] * 3, [0.5] * 3, [0.5] * 3])))
+        base.params["opacity_logits"].fill_(2.0)
+    model = SpacetimeModel.from_static(base, [0.2, 0.6, 0.9], [0.3, 0.4, 0.5])
+    with torch.no_grad():
+        model.params["motion"].copy_(torch.arange(27.0).reshape(3, 3, 3))
+        model.params["omega"].copy_(torch.arange(12.0).reshape(3, 4))
+    trainer = _trainer_with_model(clip, model)
+    # give every parameter some Adam state, as after real steps
+    for p in trainer.model.params.values():
+        p.grad = torch.ones_like(p)
+    trainer.optimizer.step()
+    p0 = {k: v.detach().clone() for k, v in trainer.model.params.items()}
+    stats = DensifyStats(3)
+    stats.grad_accum[:] = torch.tensor([1.0, 1.0, 0.0])
+    stats.denom[:] = 1
+    info = densify_and_prune_4d(trainer.model, trainer.optimizer, stats, 1.0, DensifyConfig(), prune_large=False,
+                                generator=torch.Generator().manual_seed(0))
+    m = trainer.model
+    assert (info["cloned"], info["split"]) == (1, 1)
+    # kept: 0 (cloned parent), 2 (no gradient); appended: clone of 0, two children of 1 (parent 1 removed)
+    assert m.num_gaussians == 5
+    rows = [0, 2, 0, 1, 1]
+    for name in ("t_center", "t_log_scale", "motion", "omega", "sh_dc", "quats"):
+        assert torch.equal(m.params[name].detach(), p0[name][rows]), name
+    # split children: new centres around the parent, smaller; the clone is an exact copy
+    assert torch.equal(m.params["means"].detach()[2], p0["means"][0])
+    assert not torch.equal(m.params["means"].detach()[3], p0["means"][1])
+    assert bool((m.params["log_scales"].detach()[3:] < p0["log_scales"][1]).all())
+    for group in trainer.optimizer.param_groups:
+        p = group["params"][0]
+        assert p is m.params[group["name"]] and p.shape[0] == 5
+        state = trainer.optimizer.state[p]
+        assert state["exp_avg"].shape == p.shape
+        assert float(state["exp_avg"][2:].abs().sum()) == 0  # appended rows start with zero moments
+        if p[0].numel():  # (sh_rest is empty at degree 0)
+            assert float(state["exp_avg"][:2].abs().sum()) > 0  # kept rows keep theirs
+
+
+def test_prune_uses_peak_opacity_within_the_clip(clip):
+    base = GaussianModel.from_points(np.array([[0.0, 0, 0], [0.3, 0, 0], [0, 0.3, 0]]), None, 0)
+    with torch.no_grad():
+        base.params["opacity_logits"].fill_(2.0)
+    # visible all clip / centred after the clip but wide / centred long after the clip and short-lived
+    model = SpacetimeModel.from_static(base, [0.5, 1.2, 3.0], [0.1, 1.0, 0.1])
+    peak = peak_opacity_in_clip(model)
+    s = torch.sigmoid(torch.tensor(2.0))
+    assert torch.allclose(peak, torch.stack([s, s * np.exp(-0.04), s * np.exp(-400.0)]))
+    trainer = _trainer_with_model(clip, model)
+    info = densify_and_prune_4d(trainer.model, trainer.optimizer, DensifyStats(3), 1.0, DensifyConfig(),
+                                prune_large=False)
+    assert info["pruned"] == 1 and torch.allclose(trainer.model.t_center.detach(), torch.tensor([0.5, 1.2]))
+
+
+def test_training_steps_render_at_time_move_temporal_params_and_use_pseudo_times(clip):
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    trainer = SpacetimeTrainer(scene, _config(iters=8))
+    trainer.setup()
+    before = {k: v.detach().clone() for k, v in trainer.model.params.items()}
+    cam = replace(scene.test[0].camera, time=0.25)
+    target = np.full((SIZE, SIZE, 3), 0.5, np.float32)
+    trainer.set_pseudo_views([PseudoView(camera=cam, image=target, weight=0.5, name="p")])
+    seen = []
+    trainer.loss_terms["probe"] = lambda ctx: seen.append((ctx.trainer.train_views[ctx.view_index].camera.time,
+                                                           ctx.pseudo.camera.time if ctx.pseudo else None))
+    trainer.train()
+    assert trainer.step == 8 and trainer.nan_steps_skipped == 0
+    assert {t for t, _ in seen} <= {0.0, 0.5, 1.0} and {p for _, p in seen} == {0.25}
+    assert "pseudo_l1" in trainer.last_losses
+    for name in ("t_center", "t_log_scale", "motion", "omega"):
+        assert not torch.equal(before[name], trainer.model.params[name].detach()), name
+    with torch.no_grad():
+        a = trainer.render(replace(cam, time=0.0)).color
+        b = trainer.render(replace(cam, time=1.0)).color
+    assert not torch.allclose(a, b)
+
+
+def test_checkpoint_resume_keeps_the_4d_model(clip, tmp_path):
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    trainer = SpacetimeTrainer(scene, _config(iters=6), checkpoint_dir=tmp_path)
+    trainer.setup()
+    trainer.train(until=3)
+    trainer.save_checkpoint()
+    again = SpacetimeTrainer(scene, _config(iters=6), checkpoint_dir=tmp_path)
+    again.setup(resume=True)
+    assert again.step == 3 and isinstance(again.model, SpacetimeModel)
+    for name, value in trainer.model.params.items():
+        assert torch.equal(again.model.params[name].detach(), value.detach()), name
+    assert len(again.optimizer.param_groups) == len(trainer.optimizer.param_groups)
+    again.train()
+    assert again.step == 6
+    # a 3D trainer cannot silently resume a 4D checkpoint into a 3D model, nor the reverse
+    static = _strip_time(load_dynamic_scene(clip, train_cameras=2))
+    plain = Trainer(static, _config(iters=6), checkpoint_dir=tmp_path / "s")
+    plain.setup()
+    plain.train(until=2)
+    plain.save_checkpoint()
+    with pytest.raises(GsgsError, match="3D model"):
+        SpacetimeTrainer(scene, _config(iters=6), checkpoint_dir=tmp_path / "s").setup(resume=True)
+
+
+@pytest.mark.slow
+def test_bench_runs_all_three_variants(clip, tmp_path):
+    from gsgs_engine.bench_dynamic import format_table, run_dynamic_bench
+
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    results = run_dynamic_bench(scene, tmp_path, iters=30, per_frame_iters=10, init_points=80, log=lambda m: None)
+    for name in ("4d", "static_all", "static_per_frame"):
+        r = results[name]
+        assert np.isfinite(r["psnr"]) and 0 < r["ssim"] <= 1 and r["train_seconds"] > 0
+        assert len(r["per_view"]) == 3  # the held-out camera at each of the 3 frames
+    assert results["static_per_frame"]["models"] == 3 and results["static_per_frame"]["iters"] == 30
+    assert (tmp_path / "4d" / "point_cloud.ply").is_file()
+    assert "static_per_frame" in format_table(results)
