@@ -13,6 +13,7 @@ import bpy
 
 from gsgs_blender.dataset_render import SphereRig, add_rig_cameras
 
+SCENE_VERSION = 2  # bump when the scene or rig changes: the demo re-renders datasets of another version
 TRAIN_VIEWS = 8
 TEST_VIEWS = 25
 RIG_RADIUS = 4.5
@@ -119,7 +120,7 @@ def build_demo_scene(scene: bpy.types.Scene | None = None, clear: bool = True) -
     demo = DemoScene(scene)
     objs = _collection(scene, "gsgs demo objects")
 
-    ground = _material("ground_brick", "brick", (0.55, 0.22, 0.12), (0.85, 0.82, 0.72), scale=3.0, roughness=0.8)
+    ground = _material("ground_brick", "brick", (0.55, 0.22, 0.12), (0.85, 0.82, 0.72), scale=1.5, roughness=0.8)
     checker = _material("cube_checker", "checker", (0.8, 0.08, 0.06), (0.92, 0.92, 0.88), scale=4.0)
     noise = _material("sphere_noise", "noise", (0.05, 0.15, 0.7), (0.95, 0.8, 0.1), scale=6.0, roughness=0.35)
     wave = _material("cylinder_wave", "wave", (0.1, 0.55, 0.15), (0.75, 0.1, 0.6), scale=3.0)

@@ -53,14 +53,21 @@ def render_demo_dataset(scene_dir: Path, resolution: int, samples: int, threads:
     import bpy  # noqa: F401  (the pip `bpy` module; fails clearly below when absent)
 
     from gsgs_blender.dataset_render import dataset_is_complete, render_dataset
-    from gsgs_blender.demo_scene import TEST_VIEWS, TRAIN_VIEWS, build_demo_scene
+    from gsgs_blender.demo_scene import SCENE_VERSION, TEST_VIEWS, TRAIN_VIEWS, build_demo_scene
 
     counts = {"train": TRAIN_VIEWS, "test": TEST_VIEWS}
-    if not force and dataset_is_complete(scene_dir, counts=counts):
-        meta = json.loads((scene_dir / "transforms_train.json").read_text())
-        log(f"dataset already complete in {scene_dir} ({meta['w']}x{meta['h']}, 8 train + 25 test views): "
-            "reusing it (--rerender to render again)")
+    stamp_path = scene_dir / "demo_dataset.json"
+    stamp = {"scene_version": SCENE_VERSION, "resolution": resolution, "samples": samples}
+    try:
+        same = json.loads(stamp_path.read_text()) == stamp
+    except (OSError, ValueError):
+        same = False
+    if not force and same and dataset_is_complete(scene_dir, counts=counts):
+        log(f"dataset already complete in {scene_dir} ({resolution}x{resolution}, {samples} samples, "
+            f"{TRAIN_VIEWS} train + {TEST_VIEWS} test views): reusing it (--rerender to render again)")
         return
+    if stamp_path.exists():
+        stamp_path.unlink()  # written again only once the new renders are complete
     log(f"building the procedural scene and rendering {TRAIN_VIEWS} train + {TEST_VIEWS} test views at "
         f"{resolution}x{resolution}, Cycles CPU, {samples} samples")
     demo = build_demo_scene()
@@ -68,6 +75,7 @@ def render_demo_dataset(scene_dir: Path, resolution: int, samples: int, threads:
                              threads=threads, progress=log)
     blend = scene_dir / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
+    stamp_path.write_text(json.dumps(stamp))
     log(f"rendered {TRAIN_VIEWS + TEST_VIEWS} views in {summary['seconds']:.0f} s "
         f"(denoiser: {summary['denoiser'] or 'none'}); source scene saved to {blend}")
 
@@ -115,7 +123,9 @@ def pick_prior(requested: str | None, options: tuple[list[str], str | None] | No
 def train_run(scene_dir: Path, run_dir: Path, prior: str, args: argparse.Namespace) -> dict:
     cmd = [sys.executable, "-m", "gsgs_engine", "train", str(scene_dir), "--out", str(run_dir),
            "--iters", str(args.iters), "--backend", args.backend, "--prior", prior]
-    log("running: " + " ".join(cmd[1:] if cmd[0] == sys.executable else cmd))
+    if run_dir.exists():
+        shutil.rmtree(run_dir)  # a fresh run: the trainer would otherwise meet the last demo's checkpoints
+    log("running: python " + " ".join(cmd[1:]))
     t = time.perf_counter()
     # inherit stdout/stderr: the trainer's own progress shows live
     rc = subprocess.run(cmd, cwd=REPO, env=engine_env()).returncode
