@@ -18,6 +18,7 @@ from .operators import job_run, launch, new_job_dir, report_error, scene_callbac
 
 CAMERA_COLLECTION = "GS-GS Cameras"
 POINTS_NAME = "GS-GS Sparse Points"
+PROP_FROM_SFM = "gsgs_sfm_job"  # on camera objects a solve created (replaced by the next solve)
 
 
 def photo_of(obj) -> str | None:
@@ -43,10 +44,17 @@ def set_background_photo(obj, path: str) -> None:
 
 
 def _fresh_collection(scene, name: str):
+    """The collection emptied of an earlier solve's cameras; the user's own objects are only unlinked."""
     coll = bpy.data.collections.get(name)
     if coll is not None:
         for obj in list(coll.objects):
-            bpy.data.objects.remove(obj, do_unlink=True)
+            if PROP_FROM_SFM in obj or obj.name == POINTS_NAME:
+                bpy.data.objects.remove(obj, do_unlink=True)
+            elif len(obj.users_collection) > 1:
+                coll.objects.unlink(obj)
+            else:  # keep it in the scene, out of the training set
+                scene.collection.objects.link(obj)
+                coll.objects.unlink(obj)
     else:
         coll = bpy.data.collections.new(name)
     if coll.name not in scene.collection.children:
@@ -108,6 +116,7 @@ def load_sfm_result(scene, job_dir: str | Path) -> tuple[list, object | None]:
     objects = []
     for i, (cam, image) in enumerate(cams):
         obj = camera_convert.new_camera_object(cam, coll, scene, name=cam.name or f"view_{i:03d}")
+        obj[PROP_FROM_SFM] = str(job.root)
         if image:
             if not Path(image).is_file():
                 raise GsgsError(f"{image}: photo of camera {cam.name!r} is missing; run the SfM job again")

@@ -493,3 +493,38 @@ def test_resume_operator_runs_the_same_folder_again(addon, fake_engine, tmp_path
     assert bpy.ops.gsgs.resume_job(kind="train") == {"FINISHED"}
     assert job.status()["state"] == "ok"
     assert scene.gsgs.result_object["gsgs_count"] == 64  # the finished resume imported its result
+
+
+def test_loading_a_solve_replaces_only_its_own_cameras(addon, tmp_path):
+    """A finished SfM job folder -> cameras with photos; loading again replaces them, while a user's
+    camera that was in the training collection stays in the scene."""
+    from gsgs_blender.ops_photos import load_sfm_result
+    from gsgs_engine.cameras import Camera, look_at
+    from gsgs_engine.io.ply import write_ply_vertices
+    from gsgs_engine.job import Job
+
+    scene = addon
+    photos = sorted((shared_scene("lego_200") / "train").glob("*.png"))[:3]
+    job = Job.create(tmp_path / "sfm", "sfm", data={"photos": str(photos[0].parent)})
+    job.result_dir.mkdir(parents=True)
+    cams = []
+    for k, photo in enumerate(photos):
+        R, t = look_at(np.array([4.0 * np.cos(k), 4.0 * np.sin(k), 1.0]), np.zeros(3))
+        cams.append({**Camera(R=R, t=t, fx=250, fy=250, cx=100, cy=100, width=200, height=200,
+                              name=photo.name).to_dict(), "image": str(photo)})
+    (job.result_dir / "cameras.json").write_text(json.dumps(cams))
+    rng = np.random.default_rng(0)
+    write_ply_vertices(job.result_dir / "points.ply", {"x": rng.normal(size=30).astype(np.float32),
+                                                       "y": rng.normal(size=30).astype(np.float32),
+                                                       "z": rng.normal(size=30).astype(np.float32)})
+    job.set_status("ok", "registered 3/3 views")
+    objs, pts = load_sfm_result(scene, job.root)
+    assert [o.name for o in objs] == [p.name for p in photos] and len(pts.data.vertices) == 30
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (200, 200)
+    assert all(o.data.background_images[0].image.filepath == str(p) for o, p in zip(objs, photos))
+    user_cam = bpy.data.objects.new("mine", bpy.data.cameras.new("mine"))
+    scene.gsgs.camera_collection.objects.link(user_cam)
+    objs, _ = load_sfm_result(scene, job.root)
+    assert sorted(o.name for o in scene.gsgs.camera_collection.objects if o.type == "CAMERA") == \
+        sorted(p.name for p in photos)
+    assert bpy.data.objects.get("mine") is not None and bpy.data.objects["mine"].users_collection
