@@ -18,7 +18,7 @@ from gsgs_engine.io.dynamic import load_dynamic_scene
 from gsgs_engine.spacetime import SpacetimeModel, render_at
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats
 from gsgs_engine.train.dynamic import (SpacetimeTrainer, densify_and_prune_4d, initialise_spacetime, make_trainer,
-                                       peak_opacity_in_clip)
+                                       peak_opacity_in_clip, spacetime_pseudo_views)
 from gsgs_engine.train.trainer import PseudoView, TrainConfig, Trainer
 
 SIZE = 16
@@ -231,6 +231,23 @@ def test_checkpoint_resume_keeps_the_4d_model(clip, tmp_path):
     plain.save_checkpoint()
     with pytest.raises(GsgsError, match="3D model"):
         SpacetimeTrainer(scene, _config(iters=6), checkpoint_dir=tmp_path / "s").setup(resume=True)
+
+
+def test_pseudo_views_at_pose_time_pairs_point_to_same_time_photos(clip):
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    train = scene.train
+    views = spacetime_pseudo_views(train, per_time=2, times=[0.0, 0.4, 1.0], seed=1)
+    assert [round(p.camera.time, 3) for p in views] == [0.0, 0.0, 0.4, 0.4, 1.0, 1.0]
+    assert len({p.name for p in views}) == 6
+    for p in views:
+        nearest = train[p.nearest_train]
+        # the photo a warp would use was taken at the frame nearest the pseudo view's time (0.4 -> 0.5)
+        assert nearest.camera.time == min((0.0, 0.5, 1.0), key=lambda t: abs(t - p.camera.time))
+        centres = {tuple(np.round(v.camera.center, 6)) for v in train}
+        assert tuple(np.round(p.camera.center, 6)) not in centres  # between cameras, not on one
+    assert len(spacetime_pseudo_views(train, per_time=1)) == 3  # default: every training frame
+    with pytest.raises(GsgsError, match="outside"):
+        spacetime_pseudo_views(train, 1, times=[1.5])
 
 
 @pytest.mark.slow

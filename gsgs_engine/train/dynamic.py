@@ -11,6 +11,7 @@ Only a scene with time makes a 4D model (`make_trainer` picks).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -258,3 +259,30 @@ def evaluate_over_time(trainer_or_fn, views, renders_dir: Path | None = None) ->
     fn = trainer_or_fn.render if isinstance(trainer_or_fn, Trainer) else trainer_or_fn
     return evaluate_views(lambda cam: fn(cam), views, renders_dir=renders_dir)
 
+
+
+def spacetime_pseudo_views(train_views, per_time: int, times=None, jitter: float = 0.0, seed: int = 0) -> list:
+    """Pseudo views at (pose, time) pairs for the prior loop (METHOD.md 4D: "pseudo poses at sampled times").
+
+    For each time (default: every training frame) the poses are interpolated between that
+    frame's training cameras; each pseudo view's `nearest_train` indexes `train_views` at the
+    frame nearest its time, so a generator that warps the nearest training photo warps one
+    taken at the same moment.
+    """
+    from gsgs_engine.priors.poses import PseudoView as PosePseudoView
+    from gsgs_engine.priors.poses import interpolated_pseudo_views
+
+    frames = views_by_frame(train_views)
+    frame_times = np.array(list(frames))
+    index = {id(v): i for i, v in enumerate(train_views)}
+    wanted = frame_times if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
+    out = []
+    for k, t in enumerate(wanted):
+        if not (0.0 <= float(t) <= 1.0):
+            raise GsgsError(f"pseudo view time {t} is outside the clip's [0, 1]")
+        at = frames[float(frame_times[np.argmin(np.abs(frame_times - t))])]
+        made = interpolated_pseudo_views([v.camera for v in at], per_time, jitter, seed + k, time=float(t))
+        for p in made:
+            cam = replace(p.camera, name=f"pseudo_t{float(t):.3f}_{len(out):03d}")
+            out.append(PosePseudoView(cam, index[id(at[p.nearest_train])], p.source))
+    return out
