@@ -309,30 +309,36 @@ def test_extension_zip_passes_blenders_validator(tmp_path):
 
 
 @pytest.mark.slow
-def test_extension_registers_from_the_zip_alone(tmp_path):
-    """Unpacked as Blender installs it (package dir + wheel in site-packages), without the repo on the path."""
+def test_extension_installs_and_enables_through_blender(tmp_path):
+    """Blender's own "Install from Disk" (extensions.package_install_files) in a private user
+    folder: the wheel lands in the extension site-packages, the add-on enables as
+    bl_ext.user_default.gsgs with its preferences, and disables cleanly."""
+    import os
     import subprocess
-    import zipfile
 
     path = _build(tmp_path)
-    pkg, site = tmp_path / "ext" / "gsgs", tmp_path / "site"
-    with zipfile.ZipFile(path) as zf:
-        zf.extractall(pkg)
-        wheel = next(n for n in zf.namelist() if n.endswith(".whl"))
-    with zipfile.ZipFile(pkg / wheel) as wf:
-        wf.extractall(site)
     code = (
-        "import sys, bpy, importlib\n"
-        "sys.path[:0] = [sys.argv[1], sys.argv[2]]\n"
-        "addon = importlib.import_module('gsgs')\n"
+        "import sys, bpy, addon_utils\n"
+        "r = bpy.ops.extensions.package_install_files(filepath=sys.argv[1], repo='user_default', "
+        "enable_on_install=True)\n"
+        "assert r == {'FINISHED'}, r\n"
+        "mod = 'bl_ext.user_default.gsgs'\n"
+        "prefs = bpy.context.preferences.addons[mod].preferences\n"
         "import gsgs_engine\n"
-        "assert gsgs_engine.__file__.startswith(sys.argv[1]), gsgs_engine.__file__\n"
-        "for _ in range(2):\n"
-        "    addon.register(); assert bpy.context.scene.gsgs.pseudo_count == 16; addon.unregister()\n"
-        "print('REGISTERED-FROM-ZIP')\n")
-    out = subprocess.run([sys.executable, "-c", code, str(site), str(tmp_path / "ext")], capture_output=True,
-                         text=True, timeout=120, cwd=tmp_path, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)})
-    assert "REGISTERED-FROM-ZIP" in out.stdout, out.stdout[-2000:] + out.stderr[-2000:]
+        "print('ENGINE', gsgs_engine.__file__)\n"
+        "print('PYTHON', prefs.python_path)\n"
+        "assert bpy.context.scene.gsgs.pseudo_count == 16 and not bpy.ops.gsgs.train.poll()\n"
+        "addon_utils.disable(mod)\n"
+        "assert not hasattr(bpy.types.Scene, 'gsgs')\n"
+        "print('INSTALLED-AND-ENABLED')\n")
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(tmp_path),
+           "BLENDER_USER_RESOURCES": str(tmp_path / "blender_user")}
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=300,
+                         cwd=tmp_path, env=env)
+    assert "INSTALLED-AND-ENABLED" in out.stdout, out.stdout[-2000:] + out.stderr[-2000:]
+    engine = next(line for line in out.stdout.splitlines() if line.startswith("ENGINE "))
+    assert str(tmp_path / "blender_user") in engine  # from the wheel, not this checkout
+    assert "PYTHON python3" in out.stdout  # no checkout next to an installed extension
 
 
 # -- the sidebar drawing code (no window in tests: a recording stand-in for UILayout) -------------
