@@ -468,8 +468,8 @@ def test_finished_job_imports_its_result_from_the_polling_callback(addon, fake_e
         import_job_result(scene, job.root)  # no status yet
     run = job_runner.start(job.root, sys.executable, engine_root=REPO, use_timer=False,
                            on_finish=operators.scene_callback(scene.name, _on_train_finished))
-    for _ in range(600):
-        if not job_runner.tick_all():
+    for _ in range(600):  # what bpy.app.timers would call every TIMER_INTERVAL_S
+        if job_runner._timer() is None:
             break
         time.sleep(0.05)
     assert run.state == "ok" and "imported 64 splats" in run.message
