@@ -241,11 +241,13 @@ def _draw() -> None:
         return
     text = settings.pseudo_poses
     if _CACHE["key"] != text:
-        poses = poses_from_json(text)
-        if not poses:
+        try:
+            cams = [Camera.from_dict(p, source="pseudo pose") for p in poses_from_json(text)]
+        except GsgsError:  # a hand-edited property: draw nothing rather than fail every redraw
+            cams = []
+        if not cams:
             _CACHE.update(key=text, batch=None)
             return
-        cams = [Camera.from_dict(p, source="pseudo pose") for p in poses]
         centres = np.stack([c.center for c in cams])
         size = 0.1 * max(float(np.linalg.norm(centres - centres.mean(0), axis=1).max()), 0.1)
         coords = np.concatenate([frustum_lines(c, size) for c in cams])
