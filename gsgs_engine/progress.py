@@ -37,6 +37,7 @@ class Progress:
         self._last_draw = -1e9
         self._last_decile = -1 if start_step == 0 else int(10 * start_step / max(self.total, 1))
         self._open_line = False
+        self._step = int(start_step)
 
     def eta(self, step: int) -> float | None:
         done = step - self.start_step
@@ -47,6 +48,7 @@ class Progress:
 
     def update(self, step: int, losses: dict | None = None, message: str = "", force: bool = False, **extra) -> None:
         now = time.monotonic()
+        self._step = int(step)
         eta = self.eta(step)
         last = step >= self.total
         if self.job is not None and (force or last or step == self.start_step + 1
@@ -85,7 +87,7 @@ class Progress:
         self.stream.write(text + "\n")
         self.stream.flush()
         if self.job is not None:
-            self.job.emit(self.phase, 0, self.total, message=text)
+            self.job.emit(self.phase, self._step, self.total, message=text)
 
     def close(self) -> None:
         if self._open_line:
