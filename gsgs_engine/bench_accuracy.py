@@ -31,6 +31,7 @@ def grid_cells(name: str) -> list[dict]:
     """The cells of grid `name` ("small" | "full"), or of a JSON file holding a list of cell dicts."""
     from gsgs_engine import GsgsError
     from gsgs_engine.bench_accuracy_cell import normalise_cell
+    from gsgs_engine.presets import PRESETS
 
     if name == "small":
         cells = [{**BASE, "iters": it, "prior": prior} for prior in ("none", "auto") for it in (300, 1000)]
@@ -42,6 +43,7 @@ def grid_cells(name: str) -> list[dict]:
         cells += [{**BASE, "sh_degree": d} for d in (0, 3)]
         cells += [{**BASE, "prior": "depth"}]
         cells += [{**BASE, "backend": b} for b in ("reference", "cpu") + (("cuda",) if _has_cuda() else ())]
+        cells += [dict(PRESETS[n]) for n in PRESETS]  # the presets' own cost, measured
     else:
         path = Path(name)
         if not path.is_file():
@@ -187,6 +189,13 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     return sorted(front, key=lambda i: points[i][0])
 
 
+def preset_of(cell: dict) -> str:
+    from gsgs_engine.bench_accuracy_cell import normalise_cell
+    from gsgs_engine.presets import PRESETS
+
+    return next((n for n, p in PRESETS.items() if cell_id(normalise_cell(p)) == cell_id(cell)), "")
+
+
 def _fmt(v, spec: str) -> str:
     return "n/a" if v is None else format(v, spec)
 
@@ -197,16 +206,16 @@ def markdown_table(records: list[dict], title: str) -> str:
     lines = [f"# Accuracy against time: {title}", "",
              "seconds: training wall time of the cell (plan, SfM, training, prior, export; not the evaluation). "
              "PSNR/SSIM/LPIPS: mean over the test views at full resolution. * = on the Pareto front "
-             "(no other cell is both faster and better).", "",
-             "| | cell | iters | res | prior | pseudo | rounds | SH | backend | seconds | PSNR | SSIM | LPIPS "
+             "(no other cell is both faster and better). preset: the cell a `--preset` runs.", "",
+             "| | preset | cell | iters | res | prior | pseudo | rounds | SH | backend | seconds | PSNR | SSIM | LPIPS "
              "| Gaussians | peak MB |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for i, r in enumerate(rows):
         s = r["settings"]
         sh = s["sh_degree"]
         if sh == "auto" and r.get("effects"):
             sh = f"auto:{r['effects']['sh_degree']['value']}"
-        lines.append(f"| {'*' if i in front else ''} | {r['id']} | {s['iters']} | {s['resolution_scale']:g} | "
+        lines.append(f"| {'*' if i in front else ''} | {preset_of(s)} | {r['id']} | {s['iters']} | {s['resolution_scale']:g} | "
                      f"{s['prior']} | {s['pseudo_views']} | {s['rounds']} | {sh} | {s['backend']} | "
                      f"{r['seconds']:.1f} | {r['psnr']:.2f} | {_fmt(r['ssim'], '.4f')} | {_fmt(r['lpips'], '.4f')} | "
                      f"{r['num_gaussians']} | {_fmt(r.get('peak_memory_mb'), '.0f')} |")

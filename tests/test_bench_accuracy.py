@@ -135,9 +135,9 @@ def test_grid_resumes_and_writes_table_and_plot(tmp_path, monkeypatch):
     records = ba.read_results(out / "results.jsonl")
     assert len(records) == 6 and len(plots) == 4
     table = (out / "accuracy_scene.md").read_text()
-    rows = [line for line in table.splitlines() if line.startswith("| ") and "it" in line.split("|")[2]]
+    rows = [line for line in table.splitlines() if line.startswith("| ") and "it" in line.split("|")[3]]
     assert len(rows) == 4  # the newest ok record per cell
-    front = [r.split("|")[2].strip() for r in rows if r.startswith("| * |")]
+    front = [r.split("|")[3].strip() for r in rows if r.startswith("| * |")]
     pts = {r["id"]: (r["seconds"], r["psnr"]) for r in ba.latest_ok(records)}
     ids = list(pts)
     assert sorted(front) == sorted(ids[i] for i in ba.pareto_front([pts[k] for k in ids]))
@@ -180,3 +180,45 @@ def test_two_cell_grid_end_to_end(tmp_path):
     before = (out / "results.jsonl").read_text()
     ba.run_grid(str(data), out, cells, log=lambda m: None)
     assert (out / "results.jsonl").read_text() == before  # nothing re-run
+
+
+# -- presets ---------------------------------------------------------------------------------------------
+def test_presets_are_grid_cells_measured_by_the_full_grid():
+    from gsgs_engine.presets import PRESETS
+
+    full = {ba.cell_id(c) for c in ba.grid_cells("full")}
+    for name, p in PRESETS.items():
+        cell = normalise_cell(p)
+        assert ba.cell_id(cell) in full and ba.preset_of(cell) == name
+    # ordered by cost: more iterations, never fewer pseudo views or rounds
+    f, b, x = (PRESETS[n] for n in ("fast", "balanced", "best"))
+    assert f["iters"] < b["iters"] < x["iters"] and f["pseudo_views"] <= b["pseudo_views"] <= x["pseudo_views"]
+
+
+def test_apply_preset_fills_defaults_and_keeps_typed_flags():
+    from gsgs_engine.pipeline import PriorConfig, add_prior_arguments
+    from gsgs_engine.presets import add_preset_argument, apply_preset
+    from gsgs_engine.train.trainer import TrainConfig
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--iters", type=int, default=3000)
+    parser.add_argument("--prior", default="none")
+    parser.add_argument("--sh-degree", type=int, default=3)
+    parser.add_argument("--backend", default="auto")
+    parser.add_argument("--resolution-scale", type=float, default=1.0)
+    add_prior_arguments(parser)
+    add_preset_argument(parser)
+    args = parser.parse_args(["--preset", "balanced", "--iters", "500"])
+    changed = apply_preset(args, parser)
+    assert args.iters == 500 and args.prior == "auto" and args.pseudo_views == 8 and args.rounds == 2
+    assert changed == {"prior": "auto", "pseudo_views": 8, "rounds": 2}
+    assert args.effects_overrides == {}
+    args = parser.parse_args(["--preset", "fast"])
+    apply_preset(args, parser)
+    assert (args.iters, args.prior, args.sh_degree) == (300, "none", 0)
+    assert args.effects_overrides == {"sh_degree": 0, "pseudo_views": "off"}
+    assert apply_preset(parser.parse_args([]), parser) == {}
+    tc, pc, eff, scale = apply_preset((TrainConfig(), PriorConfig()), name="best")
+    assert (tc.iters, pc.prior, pc.num_pseudo, pc.rounds, eff, scale) == (3000, "auto", 16, 3, {}, 1.0)
+    with pytest.raises(GsgsError, match="choose one of"):
+        apply_preset((TrainConfig(), PriorConfig()), name="ultra")

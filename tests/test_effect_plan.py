@@ -1,0 +1,285 @@
+"""The effect plan: each effect decided from the data (static/dynamic, RGBA/RGB, depth source, dense/sparse,
+weights), overridable, and a disabled effect costs nothing (calls counted, not time)."""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cameras import Camera
+from gsgs_engine.effect_plan import (DENSE_MAX_GAP_DEG, apply_effect_plan, coverage, exposure_corrected_spread,
+                                     identifiable_sh_degree, measure_view_dependence, parse_overrides,
+                                     plan_effects, sh_degree_for_spread, shared_triangulation)
+from gsgs_engine.io.scene import Scene, View
+from gsgs_engine.pipeline import PriorConfig
+from gsgs_engine.train.trainer import TrainConfig
+
+SIZE = 16
+
+
+def look_at(eye, size=SIZE, name="") -> Camera:
+    eye = np.asarray(eye, dtype=np.float64)
+    f = -eye / np.linalg.norm(eye)
+    r = np.cross(f, [0.0, 0.0, 1.0])
+    r /= np.linalg.norm(r)
+    R = np.stack([r, np.cross(f, r), f])
+    focal = 0.5 * size / math.tan(math.radians(50) / 2)
+    return Camera(R=R, t=-R @ eye, fx=focal, fy=focal, cx=size / 2, cy=size / 2, width=size, height=size, name=name)
+
+
+def ring(n: int, span_deg: float = 360.0, offset: float = 0.0, prefix="v") -> list[Camera]:
+    step = math.radians(span_deg) / (n if span_deg >= 360 else max(n - 1, 1))
+    return [look_at((4 * math.cos(offset + i * step), 4 * math.sin(offset + i * step), 1.0), name=f"{prefix}{i}")
+            for i in range(n)]
+
+
+@functools.lru_cache(maxsize=None)
+def _renders(n_train: int, span_deg: float, n_test: int):
+    """Cameras, RGBA renders of a dozen Gaussians, and sparse points (cached: tests reuse scenes)."""
+    from gsgs_engine.render import render
+
+    g = torch.Generator().manual_seed(0)
+    n = 12
+    gt = ((torch.rand(n, 3, generator=g) - 0.5), torch.randn(n, 4, generator=g),
+          torch.rand(n, 3, generator=g) * 0.2 + 0.1, torch.full((n,), 0.9),
+          (torch.rand(n, 1, 3, generator=g) - 0.5) / 0.28)
+    cams = ring(n_train, span_deg) + ring(n_test, offset=0.3, prefix="t")
+    images = []
+    for cam in cams:
+        with torch.no_grad():
+            out = render(*gt, cam, 0, torch.ones(3), backend="reference")
+        images.append(np.concatenate([out.color.numpy(), out.alpha.numpy()[..., None]], -1).astype(np.float32))
+    pts = np.concatenate([gt[0].numpy()] * 10) + np.random.default_rng(0).normal(0, 0.02, (10 * n, 3))
+    return cams, images, pts.astype(np.float32)
+
+
+def make_scene(n_train=4, span_deg=360.0, rgba=False, times=None, n_test=1) -> Scene:
+    cams, images, pts = _renders(n_train, span_deg, n_test)
+    if times is not None:
+        cams = [replace(c, time=t) for c, t in zip(cams, times + [times[0]] * n_test)]
+    views = [View(camera=cam, image_path=None, loader=lambda img=img if rgba else img[..., :3]: img)
+             for cam, img in zip(cams, images)]
+    return Scene(views=views, splits={"train": list(range(n_train)), "test": list(range(n_train, len(views)))},
+                 source="synthetic", format="test", points=pts.copy(),
+                 point_colors=np.full((len(pts), 3), 0.5, np.float32), has_alpha=rgba)
+
+
+def fake_triangulation(num_points: int):
+    return SimpleNamespace(points=np.zeros((num_points, 3), np.float32), colors=np.zeros((num_points, 3), np.float32),
+                           tracks=[], errors=np.zeros(num_points))
+
+
+AUTO = PriorConfig(prior="auto", num_pseudo=2, rounds=1)
+SH1 = {"sh_degree": 1}  # pin SH where a test is about something else (no triangulation needed)
+
+
+def plan(scene, prior=AUTO, overrides=None, tri=None, **cfg):
+    return plan_effects(scene, TrainConfig(init="points", **cfg), prior, {**SH1, **(overrides or {})},
+                        triangulation=tri, log=lambda m: None)
+
+
+# -- decisions --------------------------------------------------------------------------------------------
+def test_static_vs_dynamic():
+    static = plan(make_scene())
+    assert static["time"].enabled is False and static["time"].value == "static"
+    dynamic = plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]))
+    assert dynamic["time"].enabled and dynamic["time"].measured["distinct_times"] == 4
+    with pytest.raises(GsgsError, match="4D"):
+        apply_effect_plan(dynamic, TrainConfig(), AUTO)
+    assert plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]), overrides={"time": "off"})["time"].enabled is False
+    with pytest.raises(GsgsError, match="distinct frame times"):
+        plan(make_scene(), overrides={"time": "on"})
+
+
+def test_rgba_vs_rgb_background():
+    rgba, rgb = plan(make_scene(rgba=True)), plan(make_scene(rgba=False))
+    assert rgba["background"].value == "transparent" and rgb["background"].value == "fixed"
+    assert apply_effect_plan(rgba, TrainConfig(), AUTO)[0].random_background is True
+    assert apply_effect_plan(rgb, TrainConfig(random_background=True), AUTO)[0].random_background is False
+    assert plan(make_scene(rgba=True), overrides={"background": "fixed"})["background"].value == "fixed"
+    with pytest.raises(GsgsError, match="no alpha"):
+        plan(make_scene(), overrides={"background": "transparent"})
+
+
+def test_with_and_without_a_depth_source(tmp_path):
+    scene = make_scene()
+    scene.points = None
+    with_points = plan(scene, tri=fake_triangulation(200))
+    assert with_points["depth"].value == "sparse" and with_points["depth"].measured["sfm_points"] == 200
+    few = plan(scene, tri=fake_triangulation(10))
+    assert few["depth"].enabled is False and "10 SfM points" in few["depth"].reason
+    (tmp_path / "dpt").mkdir()
+    model = plan(scene, replace(AUTO, depth_source=str(tmp_path / "dpt")), tri=fake_triangulation(0))
+    assert model["depth"].value == str(tmp_path / "dpt")
+    assert plan(scene, replace(AUTO, prior="none"), tri=fake_triangulation(200))["depth"].enabled is False
+    assert plan(scene, replace(AUTO, depth_reg=False), tri=fake_triangulation(200))["depth"].enabled is False
+    with pytest.raises(GsgsError, match="no depth source"):
+        plan(scene, overrides={"depth": "on"}, tri=fake_triangulation(10))
+    _, pc = apply_effect_plan(few, TrainConfig(), AUTO)
+    assert (pc.depth_reg, pc.depth_source, pc.prior) == (False, "none", "warp")
+
+
+def test_dense_vs_sparse_views():
+    dense = make_scene(n_train=24)  # a full ring: neighbours 15 deg apart (seen from the centre)
+    cov = coverage([v.camera for v in dense.train])
+    assert cov["nn_gap_median_deg"] < DENSE_MAX_GAP_DEG and cov["focus"] == "optical axes intersection"
+    p = plan(dense)
+    assert p["pseudo_views"].enabled is False and p["generator"].enabled is False and "dense" in p["pseudo_views"].reason
+    tc, pc = apply_effect_plan(p, TrainConfig(), AUTO)
+    assert pc.prior in ("depth", "none")
+    few = plan(make_scene(n_train=4))
+    assert few["pseudo_views"].value == 2 and few["generator"].value == "warp-inpaint" and "4 views" in \
+        few["pseudo_views"].reason
+    holes = plan(make_scene(n_train=14))  # enough views, but 25.7 deg apart
+    assert holes["pseudo_views"].enabled and "gap" in holes["pseudo_views"].reason
+    assert plan(dense, overrides={"pseudo_views": 3})["pseudo_views"].value == 3
+    assert plan(make_scene(n_train=4), overrides={"pseudo_views": "off"})["pseudo_views"].enabled is False
+    assert plan(dense, replace(AUTO, prior="warp"))["pseudo_views"].enabled  # an explicit request wins
+
+
+def test_generator_is_diffusion_only_with_weights(tmp_path):
+    scene = make_scene(n_train=4)
+    with pytest.raises(GsgsError, match="--diffusion-model"):
+        plan(scene, overrides={"generator": "diffusion"})
+    (tmp_path / "sd").mkdir()
+    (tmp_path / "ad").mkdir()
+    weights = replace(AUTO, diffusion_model=str(tmp_path / "sd"), depth_adapter=str(tmp_path / "ad"))
+    p = plan(scene, weights)
+    assert p["generator"].value == "diffusion"
+    assert apply_effect_plan(p, TrainConfig(), weights)[1].prior == "diffusion"
+    assert plan(scene, weights, overrides={"generator": "warp"})["generator"].value == "warp-inpaint"
+
+
+def test_overrides_parse_and_reject_unknown_names():
+    assert parse_overrides("sh_degree=1, pseudo_views=off,depth=on") == {"sh_degree": 1, "pseudo_views": "off",
+                                                                         "depth": "on"}
+    for bad, match in (("colour=1", "unknown effect"), ("sh_degree=5", "sh_degree"), ("sh_degree", "NAME=VALUE"),
+                       ("pseudo_views=-2", "positive")):
+        with pytest.raises(GsgsError, match=match):
+            parse_overrides(bad)
+
+
+# -- view-dependent colour ---------------------------------------------------------------------------------
+def test_exposure_is_removed_before_measuring_spread():
+    rng = np.random.default_rng(0)
+    albedo = rng.uniform(0.2, 0.8, (200, 3))
+    gains = np.array([[1.0, 1.0, 1.0], [1.3, 1.2, 1.1], [0.8, 0.9, 0.85], [1.1, 1.0, 0.9]])
+    obs = [np.column_stack([np.arange(4), albedo[p] * gains]) for p in range(200)]
+    m = exposure_corrected_spread(obs, 4)
+    assert m["spread_median"] < 1e-6
+    np.testing.assert_allclose(np.asarray(m["gains"]) / np.asarray(m["gains"])[0], gains / gains[0], rtol=1e-3)
+    shiny = [np.column_stack([np.arange(4), albedo[p] * gains + rng.normal(0, 0.1, (4, 3))]) for p in range(200)]
+    assert exposure_corrected_spread(shiny, 4)["spread_median"] > 0.07
+    assert [sh_degree_for_spread(s) for s in (0.0, 0.03, 0.05, 0.2)] == [0, 1, 2, 3]
+    assert [identifiable_sh_degree(n) for n in (1, 3, 4, 8, 9, 15, 16, 100)] == [0, 0, 1, 1, 2, 2, 3, 3]
+
+
+def test_view_dependence_from_tracks_in_images():
+    rng = np.random.default_rng(1)
+    n_views, n_pts = 16, 40
+    size = 84  # a 7 x 7 grid of 12-px cells; each view puts every point in a different cell
+    flat = [np.zeros((size, size, 3), np.float32) for _ in range(n_views)]
+    shiny = [np.zeros((size, size, 3), np.float32) for _ in range(n_views)]
+    cells = [rng.permutation(49)[:n_pts] for _ in range(n_views)]
+    tracks = []
+    for p in range(n_pts):
+        base = rng.uniform(0.3, 0.7, 3)
+        track = []
+        for v in range(n_views):
+            y, x = divmod(int(cells[v][p]), 7)
+            y, x = 12 * y + 6, 12 * x + 6
+            flat[v][y - 3:y + 4, x - 3:x + 4] = base * [1.0, 1.1, 0.9][v % 3]  # uniform patch, per-view gain
+            shiny[v][y - 3:y + 4, x - 3:x + 4] = np.clip(base + rng.normal(0, 0.12, 3), 0, 1)
+            track.append((v, x + 0.5, y + 0.5))
+        tracks.append(np.array(track))
+    assert measure_view_dependence(flat, tracks)["spread_median"] < 0.02
+    assert measure_view_dependence(shiny, tracks)["spread_median"] > 0.07
+    # the plan reads the training images through the scene: shiny -> degree 3, flat -> 0 (16 views allow 3)
+    for images, expected in ((shiny, 3), (flat, 0)):
+        views = [View(camera=replace(c, width=size, height=size, cx=size / 2, cy=size / 2), image_path=None,
+                      loader=lambda img=img: img) for c, img in zip(ring(n_views), images)]
+        scene = Scene(views=views, splits={"train": list(range(n_views)), "test": []}, source="synthetic")
+        tri = SimpleNamespace(points=np.zeros((n_pts, 3)), colors=np.zeros((n_pts, 3)), errors=np.zeros(n_pts),
+                              tracks=tracks)
+        p = plan_effects(scene, TrainConfig(init="points"), AUTO, triangulation=tri, log=lambda m: None)
+        assert p["sh_degree"].value == expected and p["sh_degree"].source == "auto"
+        assert p["sh_degree"].measured["points"] == n_pts
+
+
+def test_sh_degree_is_capped_by_the_number_of_views_and_unmeasurable_falls_back():
+    p = plan_effects(make_scene(n_train=4), TrainConfig(init="points"), AUTO, triangulation=fake_triangulation(0),
+                     log=lambda m: None)
+    assert p["sh_degree"].value == 1 and "not measurable" in p["sh_degree"].reason
+
+
+# -- a disabled effect costs nothing -------------------------------------------------------------------------
+def _count(monkeypatch, module, name, calls, key):
+    original = getattr(module, name)
+
+    def wrapper(*a, **k):
+        calls[key] = calls.get(key, 0) + 1
+        return original(*a, **k)
+
+    monkeypatch.setattr(module, name, wrapper)
+
+
+def _train(scene, tmp_path, overrides, prior=AUTO, iters=4):
+    from gsgs_engine.pipeline import run_prior_training
+
+    tc0 = TrainConfig(iters=iters, backend="reference", init="points", checkpoint_every=0, densify=False)
+    p = plan(scene, prior, overrides, tri=fake_triangulation(len(scene.points)))
+    tc, pc = apply_effect_plan(p, tc0, prior)
+    with shared_triangulation(p, scene.train):
+        return p, run_prior_training(scene, tc, pc, tmp_path / "out", None, plan={"effects": p.to_dict()})
+
+
+def _install_counters(monkeypatch):
+    import gsgs_engine.priors.poses as poses
+    import gsgs_engine.priors.sparse_depth as sparse_depth
+    import gsgs_engine.priors.warp_inpaint as warp_inpaint
+    import gsgs_engine.render.project as project
+    import gsgs_engine.sfm as sfm
+
+    calls: dict = {}
+    _count(monkeypatch, warp_inpaint, "warp_inpaint", calls, "generator")
+    _count(monkeypatch, poses, "interpolated_pseudo_views", calls, "pseudo_poses")
+    _count(monkeypatch, sparse_depth.SparseDepthSource, "estimate", calls, "depth_source")
+    monkeypatch.setattr(sfm, "triangulate_with_known_poses",
+                        lambda *a, **k: calls.__setitem__("triangulate", calls.get("triangulate", 0) + 1))
+    degrees: list[int] = []
+    original = project.eval_sh
+    monkeypatch.setattr(project, "eval_sh", lambda d, sh, dirs: (degrees.append(d), original(d, sh, dirs))[1])
+    return calls, degrees
+
+
+def test_disabled_effects_are_never_called(tmp_path, monkeypatch):
+    calls, degrees = _install_counters(monkeypatch)
+    scene = make_scene(n_train=24)  # dense: no pseudo views, no generator
+    p, metrics = _train(scene, tmp_path, {"sh_degree": 0, "depth": "off"})
+    assert not p["pseudo_views"].enabled and not p["depth"].enabled
+    assert calls == {}  # no generator, no pseudo poses, no depth estimates, no triangulation
+    assert degrees and set(degrees) == {0}  # SH of degree > 0 never evaluated ...
+    from gsgs_engine.io.ply import read_gaussian_ply
+
+    assert read_gaussian_ply(tmp_path / "out" / "point_cloud.ply").sh_rest.shape[1] == 0  # ... nor allocated
+    saved = metrics["plan"]["effects"]
+    assert saved["pseudo_views"]["enabled"] is False and saved["sh_degree"]["value"] == 0
+
+
+def test_enabled_effects_are_called(tmp_path, monkeypatch):
+    calls, degrees = _install_counters(monkeypatch)
+    scene = make_scene(n_train=4)  # sparse: pseudo views with the warp-inpaint generator, sparse depth
+    p, metrics = _train(scene, tmp_path, {"sh_degree": 1})
+    assert p["generator"].value == "warp-inpaint" and p["depth"].value == "sparse"
+    assert calls["generator"] == 2 and calls["pseudo_poses"] == 1 and calls["depth_source"] >= 4 + 2
+    assert "triangulate" not in calls  # the plan's points are shared, not recomputed
+    assert 1 in degrees
+    assert metrics["plan"]["effects"]["generator"]["value"] == "warp-inpaint"
+    assert metrics["prior_rounds"]
