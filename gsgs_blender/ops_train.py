@@ -52,13 +52,29 @@ def train_spec(context) -> dict:
     scene = context.scene
     s = scene.gsgs
     prefs = get_prefs(context)
+    data = {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]}
+    points = sparse_points_file(scene)
+    if points:
+        data["points"] = points  # the solve's sparse points (xyz + rgb PLY), to initialise the splats
     return {
-        "data": {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]},
+        "data": data,
         "settings": {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
                      **prior_settings(prefs, s.generator, s.rounds)},
         "pseudo_poses": pseudo_paths.poses_from_json(s.pseudo_poses),
         "blender": {"file": bpy.data.filepath, "scene": scene.name},
     }
+
+
+def sparse_points_file(scene) -> str | None:
+    """The camera solve's points.ply, when the points object still sits where the solve put it."""
+    import numpy as np
+
+    s = scene.gsgs
+    obj = s.points_object
+    if not s.sfm_job or obj is None or not np.allclose(np.asarray(obj.matrix_world), np.eye(4)):
+        return None
+    path = Path(bpy.path.abspath(s.sfm_job)) / "result" / "points.ply"
+    return str(path) if path.is_file() else None
 
 
 def _on_train_finished(scene, run) -> None:

@@ -534,3 +534,11 @@ def test_loading_a_solve_replaces_only_its_own_cameras(addon, tmp_path):
     assert sorted(o.name for o in scene.gsgs.camera_collection.objects if o.type == "CAMERA") == \
         sorted(p.name for p in photos)
     assert bpy.data.objects.get("mine") is not None and bpy.data.objects["mine"].users_collection
+    # The training job names the solve's sparse points while the points object stays in place.
+    from gsgs_blender.ops_train import train_spec
+
+    scene.gsgs.sfm_job = str(job.root)
+    assert train_spec(bpy.context)["data"]["points"] == str(job.result_dir / "points.ply")
+    scene.gsgs.points_object.location.x += 1.0
+    bpy.context.view_layer.update()
+    assert "points" not in train_spec(bpy.context)["data"]
