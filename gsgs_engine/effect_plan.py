@@ -502,3 +502,19 @@ def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_di
 
     write_json_atomic(Path(out_dir) / "metrics.json", metrics)
     return metrics
+
+
+def add_effects_argument(parser) -> None:
+    parser.add_argument("--effects", default=None, metavar="NAME=VALUE,...",
+                        help="override the effect plan: time=on|off, sh_degree=auto|0..3, background=transparent|"
+                             "fixed, depth=on|off, pseudo_views=auto|off|N, generator=auto|warp-inpaint|diffusion")
+
+
+def overrides_from_args(args) -> dict:
+    """Effect overrides of a `gsgs train` command line: a preset's, then --sh-degree, then --effects (typed wins)."""
+    out = dict(getattr(args, "effects_overrides", None) or {})
+    if getattr(args, "sh_degree", None) is not None:
+        out["sh_degree"] = int(args.sh_degree)
+    out.update(parse_overrides(getattr(args, "effects", None)))
+    check_overrides(out)
+    return out

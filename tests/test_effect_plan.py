@@ -283,3 +283,20 @@ def test_enabled_effects_are_called(tmp_path, monkeypatch):
     assert 1 in degrees
     assert metrics["plan"]["effects"]["generator"]["value"] == "warp-inpaint"
     assert metrics["prior_rounds"]
+
+
+def test_overrides_from_a_command_line_typed_flags_win():
+    import argparse
+
+    from gsgs_engine.effect_plan import add_effects_argument, overrides_from_args
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--sh-degree", type=int, default=None)
+    add_effects_argument(parser)
+    args = parser.parse_args(["--effects", "pseudo_views=4"])
+    args.effects_overrides = {"sh_degree": 0, "pseudo_views": "off"}  # what a preset set
+    assert overrides_from_args(args) == {"sh_degree": 0, "pseudo_views": 4}
+    args = parser.parse_args(["--sh-degree", "2", "--effects", "depth=off"])
+    assert overrides_from_args(args) == {"sh_degree": 2, "depth": "off"}
+    with pytest.raises(GsgsError, match="unknown effect"):
+        overrides_from_args(parser.parse_args(["--effects", "fog=on"]))
