@@ -11,7 +11,6 @@ import shlex
 import sys
 from pathlib import Path
 
-PRIORS = ("none",)  # the prior's module extends this tuple and handles the others
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--train-ids", default=None, help="comma-separated view ids/names to train on")
     parser.add_argument("--iters", type=int, default=DEFAULT_ITERS, help=f"optimisation steps (default {DEFAULT_ITERS})")
     parser.add_argument("--backend", default="auto", choices=["auto", "cpu", "reference", "cuda"])
-    parser.add_argument("--prior", default="none", help="generative prior: none (plain 3DGS)")
+    parser.add_argument("--prior", default="none",
+                        help="generative prior: none (plain 3DGS, the default), depth, warp, diffusion or auto "
+                             "(see gsgs_engine.pipeline)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale factor, e.g. 0.5")
     parser.add_argument("--sh-degree", type=int, default=3, help="maximum SH degree 0..3 (default 3)")
@@ -40,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     bg.add_argument("--white-background", dest="background", action="store_const", const="white")
     bg.add_argument("--black-background", dest="background", action="store_const", const="black")
     parser.set_defaults(background="white")
+    from gsgs_engine.pipeline import add_prior_arguments
+
+    add_prior_arguments(parser)
 
 
 def _resume_command(args: argparse.Namespace) -> str:
@@ -56,8 +60,10 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine.train.trainer import (TrainConfig, TrainingCancelled, TrainingInterrupted, train_and_export,
                                            validate_config)
 
-    if args.prior not in PRIORS:
-        raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIORS)}")
+    from gsgs_engine.pipeline import PRIOR_CHOICES, prior_config_from_args, run_prior_training
+
+    if args.prior not in PRIOR_CHOICES:
+        raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIOR_CHOICES)}")
     if args.resolution_scale <= 0:
         raise GsgsError(f"--resolution-scale must be positive (got {args.resolution_scale})")
     config = TrainConfig(iters=args.iters, sh_degree=args.sh_degree, backend=args.backend, seed=args.seed,
@@ -76,7 +82,12 @@ def run(args: argparse.Namespace) -> int:
                            resolution_scale=args.resolution_scale, background=background)
         plan = {"data": str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
                 "resolution_scale": args.resolution_scale, "prior": args.prior}
-        metrics = train_and_export(scene, config, out, out / "checkpoints", job=job, resume=args.resume, plan=plan)
+        if args.prior == "none":
+            metrics = train_and_export(scene, config, out, out / "checkpoints", job=job, resume=args.resume,
+                                       plan=plan)
+        else:
+            metrics = run_prior_training(scene, config, prior_config_from_args(args), out, out / "checkpoints",
+                                         job=job, resume=args.resume, plan=plan)
     except TrainingInterrupted as exc:
         msg = (f"interrupted at step {exc.step}; checkpoint {exc.checkpoint}; resume with: {_resume_command(args)}")
         job.set_status("cancelled", msg)

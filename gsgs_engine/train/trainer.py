@@ -546,13 +546,11 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
 def config_from_settings(settings: dict) -> TrainConfig:
     """Job settings (job.json "settings") -> TrainConfig; unknown keys are rejected by name."""
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-               "init", "random_init_points", "densify", "max_gaussians", "prior", "resolution_scale", "background"}
+               "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
+               "resolution_scale", "background"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
-    prior = settings.get("prior", "none")
-    if prior not in (None, "none"):
-        raise GsgsError(f"job.json: prior {prior!r} is not handled by the plain trainer; use 'none'")
     cfg = TrainConfig()
     for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                 "init", "random_init_points", "densify"):
@@ -591,7 +589,7 @@ def run_train_job(job) -> None:
     if not path.is_absolute():
         path = job.root / path
     config = config_from_settings(settings)
-    background = tuple(settings.get("background", (1.0, 1.0, 1.0)))
+    background = tuple(settings.get("background", data.get("background", (1.0, 1.0, 1.0))))
     scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
                        train_views=data.get("train_views"), train_ids=data.get("train_ids"),
                        resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background)
@@ -599,8 +597,16 @@ def run_train_job(job) -> None:
     plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
             "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
             "job": str(job.root)}
+    prior = settings.get("prior", "none") or "none"
     try:
-        train_and_export(scene, config, job.result_dir, job.checkpoint_dir, job=job, resume=resume, plan=plan)
+        if prior == "none":
+            train_and_export(scene, config, job.result_dir, job.checkpoint_dir, job=job, resume=resume, plan=plan)
+        else:
+            from gsgs_engine.pipeline import prior_config_from_settings, run_prior_training
+
+            run_prior_training(scene, config, prior_config_from_settings(settings), job.result_dir,
+                               job.checkpoint_dir, job=job, resume=resume, plan=plan,
+                               authored_poses=job.spec.get("pseudo_poses"))
     except TrainingCancelled as exc:
         job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
                                     "run the job again to resume")
