@@ -215,8 +215,9 @@ def markdown_table(records: list[dict], title: str) -> str:
         sh = s["sh_degree"]
         if sh == "auto" and r.get("effects"):
             sh = f"auto:{r['effects']['sh_degree']['value']}"
-        lines.append(f"| {'*' if i in front else ''} | {preset_of(s)} | {r['id']} | {s['iters']} | {s['resolution_scale']:g} | "
-                     f"{s['prior']} | {s['pseudo_views']} | {s['rounds']} | {sh} | {s['backend']} | "
+        lines.append(f"| {'*' if i in front else ''} | {preset_of(s)} | {r['id']} | {s['iters']} | "
+                     f"{s['resolution_scale']:g} | {s['prior']} | {s['pseudo_views']} | {s['rounds']} | {sh} | "
+                     f"{s['backend']} | "
                      f"{r['seconds']:.1f} | {r['psnr']:.2f} | {_fmt(r['ssim'], '.4f')} | {_fmt(r['lpips'], '.4f')} | "
                      f"{r['num_gaussians']} | {_fmt(r.get('peak_memory_mb'), '.0f')} |")
     failed = [r for r in records if r.get("status") != "ok"]
@@ -270,7 +271,8 @@ def write_reports(out: Path, name: str, log=print, with_plot: bool = True) -> li
         plot(records, out / f"accuracy_{name}.png", f"{name}: accuracy against time")
     if log:
         log(table)
-        log(f"wrote {out / f'accuracy_{name}.md'}" + (f" and {out / f'accuracy_{name}.png'}" if ok and with_plot else ""))
+        png = f" and {out / f'accuracy_{name}.png'}" if ok and with_plot else ""
+        log(f"wrote {out / f'accuracy_{name}.md'}{png}")
     return records
 
 
