@@ -179,7 +179,11 @@ class SpacetimeTrainer(Trainer):
             t0 = time.perf_counter()
             model, info = initialise_spacetime(self.scene, self.train_views, self.config, self.torch_gen, self.log)
             self.phase_seconds["init"] += time.perf_counter() - t0
-            super().setup(resume=False, initial_model=model)
+            log, self.log = self.log, (lambda msg: None)  # the base would call this model "given"
+            try:
+                super().setup(resume=False, initial_model=model)
+            finally:
+                self.log = log
             self.init_info = info
             self.log(f"4D init: {info.method}, {info.num_points} Gaussians ({info.reason})")
             return
@@ -250,15 +254,6 @@ class SpacetimeTrainer(Trainer):
 def make_trainer(scene, config: TrainConfig, **kwargs) -> Trainer:
     """A 4D trainer when the scene has time, else the plain 3D one (a static scene never gets temporal params)."""
     return SpacetimeTrainer(scene, config, **kwargs) if scene.has_time else Trainer(scene, config, **kwargs)
-
-
-def evaluate_over_time(trainer_or_fn, views, renders_dir: Path | None = None) -> dict:
-    """PSNR / SSIM of held-out views (each rendered at its own time), averaged over time."""
-    from gsgs_engine.train.evaluate import evaluate_views
-
-    fn = trainer_or_fn.render if isinstance(trainer_or_fn, Trainer) else trainer_or_fn
-    return evaluate_views(lambda cam: fn(cam), views, renders_dir=renders_dir)
-
 
 
 def spacetime_pseudo_views(train_views, per_time: int, times=None, jitter: float = 0.0, seed: int = 0) -> list:
