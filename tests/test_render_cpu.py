@@ -285,6 +285,12 @@ def test_bad_inputs_raise_clear_errors(cpu):
         cpu(**dict(scene, width=0))
 
 
+def test_second_load_reuses_the_build(cpu):
+    # available() succeeded, so the finished build is on disk and later processes only load it.
+    assert cpu_backend.is_built()
+    assert cpu_backend.unavailable_reason() is None
+
+
 def test_build_dir_is_keyed_and_overridable(monkeypatch, tmp_path):
     monkeypatch.setenv("GSGS_BUILD_DIR", str(tmp_path))
     d = cpu_backend.build_dir()

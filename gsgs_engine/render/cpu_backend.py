@@ -31,6 +31,7 @@ SOURCES = ("rasterize_cpu.cpp",)
 CFLAGS = ("-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math")
 _OP_NAMESPACE = "gsgs_raster_cpu"
 _READY_MARKER = "gsgs_build_ok"
+_STALE_LOCK_S = 20 * 60
 
 _lock = threading.Lock()
 _state: dict = {}  # "ops" -> torch.ops namespace, or "error" -> reason (one attempt per process)
@@ -97,6 +98,11 @@ def _compile(verbose: bool = False) -> None:
         os.environ["PATH"] = os.pathsep.join(missing + path_entries)
     if not cpp_extension.is_ninja_available():
         raise RuntimeError("ninja is not installed (pip install ninja)")
+    # A build killed outright (not interrupted) leaves cpp_extension's lock behind, and every later
+    # build would wait on it forever; no build takes anywhere near this long.
+    lock = directory / "lock"
+    if lock.exists() and time.time() - lock.stat().st_mtime > _STALE_LOCK_S:
+        lock.unlink(missing_ok=True)
     cpp_extension.load(
         name=_library_name(),
         sources=[str(CSRC / name) for name in SOURCES],
@@ -108,15 +114,22 @@ def _compile(verbose: bool = False) -> None:
     (directory / _READY_MARKER).write_text(torch.__version__ + "\n")
 
 
-def _load(verbose: bool = False):
+def is_built() -> bool:
+    """True when a finished build for these sources and this torch exists (nothing to compile)."""
+    directory = build_dir()
+    return (directory / f"{_library_name()}.so").exists() and (directory / _READY_MARKER).exists()
+
+
+def _load(verbose: bool = False, announce: bool = False):
     """The torch.ops namespace of the extension, building it when needed (raises on failure)."""
     import torch
 
-    directory = build_dir()
-    library = directory / f"{_library_name()}.so"
-    if library.exists() and (directory / _READY_MARKER).exists():
-        torch.ops.load_library(str(library))
+    if is_built():
+        torch.ops.load_library(str(build_dir() / f"{_library_name()}.so"))
     else:
+        if announce:
+            print(f"gsgs: compiling the CPU rasteriser into {build_dir()} (first use only, about a minute)",
+                  file=sys.stderr, flush=True)
         _compile(verbose=verbose)
     return getattr(torch.ops, _OP_NAMESPACE)
 
@@ -125,9 +138,10 @@ def _ops():
     with _lock:
         if "ops" not in _state and "error" not in _state:
             try:
-                _state["ops"] = _load()
+                _state["ops"] = _load(announce=True)
             except Exception as exc:  # compiler missing, build error, ABI mismatch: reported, not fatal
-                _state["error"] = _summarise_build_error(exc)
+                _state["error"] = (f"{_summarise_build_error(exc)} (build folder {build_dir()}; "
+                                   "GSGS_BUILD_DIR moves it)")
         return _state.get("ops")
 
 
@@ -239,7 +253,7 @@ def run(args) -> int:
     directory = build_dir()
     if args.force and directory.exists():
         shutil.rmtree(directory)
-    reused = (directory / _READY_MARKER).exists()
+    reused = is_built()
     start = time.perf_counter()
     try:
         _load(verbose=args.verbose)

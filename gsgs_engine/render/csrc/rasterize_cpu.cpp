@@ -141,8 +141,10 @@ void alpha_extent(float A, float B, float C, float opacity, float* ext_x, float*
   *ext_y = static_cast<float>(std::sqrt(k * a / det) * 1.001 + 1.0);
 }
 
-// Depth -> unsigned key with the same order as the float (negative values flipped); -0 == +0.
+// Depth -> unsigned key with the same order as the float (negative values flipped); -0 == +0 and
+// every NaN sorts last, as in torch.sort.
 GSGS_INLINE uint32_t depth_key(float d) {
+  if (std::isnan(d)) return 0xFFFFFFFFu;
   if (d == 0.0f) d = 0.0f;
   uint32_t u;
   std::memcpy(&u, &d, sizeof u);
@@ -456,23 +458,19 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
 
   b.splats.resize(n_vis);
   std::vector<TileRect> rects(n_vis);
+  at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      const int64_t g = b.order[s];
+      Splat& sp = b.splats[s];
+      sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
+                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f};
+      alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
+      tile_rect(sp.mx, sp.my, rad[g], tiles_x, tiles_y, &rects[s]);
+    }
+  });
   b.slot_offset.assign(n_vis + 1, 0);
   int64_t total = 0;
   for (int64_t s = 0; s < n_vis; ++s) {
-    const int64_t g = b.order[s];
-    Splat& sp = b.splats[s];
-    sp.mx = m[2 * g];
-    sp.my = m[2 * g + 1];
-    sp.A = cn[3 * g];
-    sp.B = cn[3 * g + 1];
-    sp.C = cn[3 * g + 2];
-    sp.opacity = op[g];
-    sp.r = col[3 * g];
-    sp.g = col[3 * g + 1];
-    sp.b = col[3 * g + 2];
-    sp.depth = dp[g];
-    alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
-    tile_rect(sp.mx, sp.my, rad[g], tiles_x, tiles_y, &rects[s]);
     b.slot_offset[s] = static_cast<int32_t>(total);
     total += static_cast<int64_t>(rects[s].x1 - rects[s].x0 + 1) * (rects[s].y1 - rects[s].y0 + 1);
     TORCH_CHECK(total < std::numeric_limits<int32_t>::max(),
