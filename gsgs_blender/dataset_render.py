@@ -243,7 +243,7 @@ def _render_view_layer(scene: bpy.types.Scene) -> bpy.types.ViewLayer:
 def _depth_compositor(scene: bpy.types.Scene, layer: bpy.types.ViewLayer):
     """A compositor that writes the Depth pass as a single-channel float32 EXR.
 
-    Returns (node tree, file output node, set_output(directory, stem)). Blender 5 gives the scene
+    Returns (node tree, the nodes added, set_output(directory, stem)). Blender 5 gives the scene
     a compositor node group; Blender 4.x keeps scene.node_tree and needs a Composite node, or the
     render result would be empty.
     """
@@ -317,7 +317,8 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
     scene = scene or bpy.context.scene
     out = Path(out_dir)
     splits = {name: list(cams) for name, cams in splits.items()}
-    if not any(splits.values()):
+    splits = {name: cams for name, cams in splits.items() if cams}  # an empty split gets no JSON
+    if not splits:
         raise GsgsError(f"{out}: no cameras to render; give at least one camera in a split")
     for name, cams in splits.items():
         if not name or "/" in name or "\\" in name:
@@ -407,8 +408,7 @@ def render_dataset(out_dir: str | os.PathLike, splits: dict[str, Iterable[bpy.ty
                 if progress:
                     progress(f"[gsgs render] {split} {i + 1}/{len(cams)} ({done}/{total}) {cam.name} -> "
                              f"{png.name} {time.perf_counter() - t0:.1f}s")
-            first = camera_intrinsics(cams[0], scene) if cams else {}
-            data = dict(first)
+            data = camera_intrinsics(cams[0], scene)
             data.update({"frames": frames, "generator": "gsgs_blender.dataset_render",
                          "blender_version": bpy.app.version_string, "samples": int(samples),
                          "denoiser": summary["denoiser"], "depth": "planar camera z, EXR channel V" if with_depth else None})
