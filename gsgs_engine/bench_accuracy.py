@@ -103,8 +103,7 @@ def run_cell_process(data: str, cell: dict, cell_dir: Path, train_views: int | N
            "--settings", json.dumps(cell), "--format", fmt]
     if train_views is not None:
         cmd += ["--train-views", str(train_views)]
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
+    env = _child_env()
     t0 = time.perf_counter()
     timed_out = threading.Event()
     with open(cell_dir / "log.txt", "w") as log:
@@ -143,6 +142,20 @@ def run_cell_process(data: str, cell: dict, cell_dir: Path, train_views: int | N
     return record
 
 
+def _child_env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
+    return env
+
+
+def prepare_cpu_backend(log=print, python: str = sys.executable) -> bool:
+    """Build the compiled CPU rasteriser once before the cells, so no cell's seconds include compiling it."""
+    proc = subprocess.run([python, "-m", "gsgs_engine", "build-ext"], env=_child_env(), capture_output=True, text=True)
+    message = (proc.stdout + proc.stderr).strip().splitlines()
+    log(message[-1] if message else f"build-ext exited with {proc.returncode}")
+    return proc.returncode == 0
+
+
 def run_grid(data: str, out: Path, cells: list[dict], train_views: int | None = None, fmt: str = "auto",
              timeout_s: float | None = None, name: str | None = None, log=print) -> list[dict]:
     """Run the cells not yet in out/results.jsonl; rewrite the table and plot after each. Returns all records."""
@@ -154,6 +167,8 @@ def run_grid(data: str, out: Path, cells: list[dict], train_views: int | None = 
     name = name or Path(data).resolve().name
     todo = [c for c in cells if cell_id(c) not in done]
     log(f"accuracy grid: {len(cells)} cells, {len(cells) - len(todo)} already in {results}, {len(todo)} to run")
+    if any(c["backend"] in ("auto", "cpu") for c in todo):
+        prepare_cpu_backend(log)
     for i, cell in enumerate(todo):
         key = cell_id(cell)
         log(f"[{i + 1}/{len(todo)}] {key} ...")

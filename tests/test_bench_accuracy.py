@@ -111,6 +111,8 @@ def test_grid_resumes_and_writes_table_and_plot(tmp_path, monkeypatch):
     plots = []
     real_plot = ba.plot
     monkeypatch.setattr(ba, "run_cell_process", fake_run)
+    builds = []
+    monkeypatch.setattr(ba, "prepare_cpu_backend", lambda log=None: builds.append(1) or True)
     monkeypatch.setattr(ba, "plot", lambda records, path, title: plots.append(path) if plots else (
         plots.append(path), real_plot(records, path, title)))  # draw once: matplotlib is slow here
     cells = ba.grid_cells("small")
@@ -118,7 +120,7 @@ def test_grid_resumes_and_writes_table_and_plot(tmp_path, monkeypatch):
     data.mkdir()
     out = tmp_path / "bench"
     ba.run_grid(str(data), out, cells, log=lambda m: None)
-    assert len(calls) == 4
+    assert len(calls) == 4 and len(builds) == 1  # the CPU rasteriser is built before the cells, not in one
     table = (out / "accuracy_scene.md").read_text()
     assert "boom" in table and "| * |" in table and "LPIPS n/a: no LPIPS weights" in table
     assert (out / "accuracy_scene.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -128,7 +130,7 @@ def test_grid_resumes_and_writes_table_and_plot(tmp_path, monkeypatch):
     ba.run_grid(str(data), out, cells, log=lambda m: None)
     assert calls[4:] == [ba.cell_id(cells[2])]
     ba.run_grid(str(data), out, cells, log=lambda m: None)
-    assert len(calls) == 5
+    assert len(calls) == 5 and len(builds) == 2  # nothing to run: nothing to build
     # a different number of training views is a different experiment: all cells run again
     ba.run_grid(str(data), out, cells[:1], train_views=2, log=lambda m: None)
     assert len(calls) == 6
