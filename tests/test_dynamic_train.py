@@ -255,11 +255,11 @@ def test_bench_runs_all_three_variants(clip, tmp_path):
     from gsgs_engine.bench_dynamic import format_table, run_dynamic_bench
 
     scene = load_dynamic_scene(clip, train_cameras=2)
-    results = run_dynamic_bench(scene, tmp_path, iters=30, per_frame_iters=10, init_points=80, log=lambda m: None)
+    results = run_dynamic_bench(scene, tmp_path, iters=12, per_frame_iters=4, init_points=80, log=lambda m: None)
     for name in ("4d", "static_all", "static_per_frame"):
         r = results[name]
         assert np.isfinite(r["psnr"]) and 0 < r["ssim"] <= 1 and r["train_seconds"] > 0
         assert len(r["per_view"]) == 3  # the held-out camera at each of the 3 frames
-    assert results["static_per_frame"]["models"] == 3 and results["static_per_frame"]["iters"] == 30
+    assert results["static_per_frame"]["models"] == 3 and results["static_per_frame"]["iters"] == 12
     assert (tmp_path / "4d" / "point_cloud.ply").is_file()
     assert "static_per_frame" in format_table(results)
