@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-fast venv build-ext bench clean
+.PHONY: demo test test-fast venv build-ext extension clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -19,6 +19,9 @@ venv: $(STAMP)
 
 build-ext: $(STAMP)
 	$(BIN)/python -m gsgs_engine build-ext
+
+extension: $(STAMP)
+	$(BIN)/python scripts/build_extension.py --out dist
 
 demo: $(STAMP)
 	$(BIN)/python scripts/demo.py --out demo_out

@@ -286,6 +286,17 @@ def test_job_folder_with_inline_cameras(tmp_path):
     assert img[0, 0].tolist() == [0, 0, 0]  # transparent pixel on the job's black background
     assert img[-1, -1] == pytest.approx(np.full(3, 128 / 255))
     assert len(load_scene(job_dir, train_views=2).train) == 2
+    assert scene.points is None
+    from gsgs_engine.io.ply import write_ply_vertices
+
+    pts = np.array([[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]], np.float32)
+    rgb = np.array([[255, 0, 0], [0, 255, 0]], np.uint8)
+    write_ply_vertices(job_dir / "points.ply", {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2],
+                                                "red": rgb[:, 0], "green": rgb[:, 1], "blue": rgb[:, 2]})
+    Job.create(job_dir, "train", data={"cameras": entries, "points": "points.ply"})
+    with_points = load_scene(job_dir)
+    np.testing.assert_array_equal(with_points.points, pts)
+    np.testing.assert_allclose(with_points.point_colors, [[1, 0, 0], [0, 1, 0]])
     entries[1]["image"] = "images/missing.png"
     Job.create(job_dir, "train", data={"cameras": entries})
     with pytest.raises(GsgsError, match="missing.png.*missing"):

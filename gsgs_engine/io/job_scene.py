@@ -5,7 +5,7 @@
              "background": [1, 1, 1]}
 or
     "data": {"cameras": [{<Camera.to_dict()>, "image": "images/a.png", "split": "train"}, ...],
-             "background": [1, 1, 1], "near": 0.1, "far": 100.0}
+             "background": [1, 1, 1], "near": 0.1, "far": 100.0, "points": "points.ply"}
 
 Relative paths are relative to the job folder ("path" is accepted for "source"). Arguments
 given to load_scene override these values; a missing "split" means "train".
@@ -86,6 +86,25 @@ def _inline_scene(job: Job, data: dict, scale: float, bg: np.ndarray) -> Scene:
     if not splits["train"]:
         raise GsgsError(f"{where}: no camera has split \"train\"; mark the training views")
     near, far = data.get("near"), data.get("far")
+    points, colors = _inline_points(job, data)
     return Scene(views=views, splits=splits, source=str(job.root), format="job", background=bg,
                  near=None if near is None else float(near), far=None if far is None else float(far),
-                 has_alpha=has_alpha)
+                 points=points, point_colors=colors, has_alpha=has_alpha)
+
+
+def _inline_points(job: Job, data: dict) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Sparse points named by data.points (an x y z [red green blue] PLY, e.g. an SfM solve's)."""
+    if not data.get("points"):
+        return None, None
+    from gsgs_engine.io.ply import read_ply_vertices
+
+    path = _resolve(job.root, data["points"])
+    v = read_ply_vertices(path)
+    if not all(k in v for k in ("x", "y", "z")):
+        raise GsgsError(f"{path}: a point cloud needs x, y, z properties (named by {job.spec_path} data.points)")
+    points = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float32)
+    colors = None
+    if all(k in v for k in ("red", "green", "blue")):
+        rgb = np.stack([v["red"], v["green"], v["blue"]], axis=1).astype(np.float32)
+        colors = rgb / 255.0 if v["red"].dtype == np.uint8 else rgb
+    return points, colors
