@@ -67,7 +67,8 @@ class SpacetimeModel(GaussianModel):
         expect = {"t_center": (n,), "t_log_scale": (n,), "motion": (n, MOTION_DEGREE, 3), "omega": (n, 4)}
         for name, shape in expect.items():
             if tuple(self.params[name].shape) != shape:
-                raise GsgsError(f"temporal parameter {name} has shape {tuple(self.params[name].shape)}, expected {shape}")
+                raise GsgsError(f"temporal parameter {name} has shape {tuple(self.params[name].shape)}, "
+                                f"expected {shape}")
 
     # -- temporal activations ---------------------------------------------------------
     @property
@@ -160,7 +161,8 @@ class SpacetimeModel(GaussianModel):
         static = GaussianModel.from_ply(ply)
         ex = ply.extra
         n = static.num_gaussians
-        motion = np.stack([np.asarray(ex[f], dtype=np.float32) for f in PLY_MOTION], axis=1).reshape(n, MOTION_DEGREE, 3)
+        motion = np.stack([np.asarray(ex[f], dtype=np.float32) for f in PLY_MOTION], axis=1)
+        motion = motion.reshape(n, MOTION_DEGREE, 3)
         omega = np.stack([np.asarray(ex[f], dtype=np.float32) for f in PLY_OMEGA], axis=1)
         p = static.params
         return cls(p["means"], p["log_scales"], p["quats"], p["opacity_logits"], p["sh_dc"], p["sh_rest"],

@@ -97,7 +97,8 @@ def test_a_4d_model_exists_only_when_the_data_has_time(clip):
 
 def test_random_init_spreads_gaussians_over_time(clip):
     scene = load_dynamic_scene(clip, train_cameras=2)
-    model, info = initialise_spacetime(scene, scene.train, _config(random_init_points=400), torch.Generator().manual_seed(0))
+    model, info = initialise_spacetime(scene, scene.train, _config(random_init_points=400),
+                                       torch.Generator().manual_seed(0))
     assert info.method == "random" and model.num_gaussians == 400
     tc = model.t_center.detach()
     assert float(tc.min()) >= 0 and float(tc.max()) <= 1 and 0.4 < float(tc.mean()) < 0.6

@@ -175,7 +175,8 @@ class SpacetimeTrainer(Trainer):
     def setup(self, resume: bool = False, initial_model: GaussianModel | None = None) -> None:
         if initial_model is not None and not isinstance(initial_model, SpacetimeModel):
             raise GsgsError("a 4D trainer continues only from a 4D model (SpacetimeModel)")
-        if initial_model is None and not (resume and self.checkpoint_dir and ckpt.latest_checkpoint(self.checkpoint_dir)):
+        resuming = resume and self.checkpoint_dir and ckpt.latest_checkpoint(self.checkpoint_dir) is not None
+        if initial_model is None and not resuming:
             t0 = time.perf_counter()
             model, info = initialise_spacetime(self.scene, self.train_views, self.config, self.torch_gen, self.log)
             self.phase_seconds["init"] += time.perf_counter() - t0
