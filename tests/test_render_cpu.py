@@ -70,10 +70,9 @@ def oracle(means2d, conics, colors, opacities, depths, radii, width, height, bac
         r = int(radii[i])
         if r <= 0:
             continue
-        # Tile rectangle in float32, as the semantics are stated for float32 inputs.
-        mx32, my32 = means2d[i, 0].detach(), means2d[i, 1].detach()
-        tx0, tx1 = math.floor(float((mx32 - r) / 16)), math.floor(float((mx32 + r) / 16))
-        ty0, ty1 = math.floor(float((my32 - r) / 16)), math.floor(float((my32 + r) / 16))
+        mx, my = float(means2d[i, 0].detach()), float(means2d[i, 1].detach())  # binned in double, as the reference
+        tx0, tx1 = math.floor((mx - r) / 16), math.floor((mx + r) / 16)
+        ty0, ty1 = math.floor((my - r) / 16), math.floor((my + r) / 16)
         in_tiles = (tile_x >= tx0) & (tile_x <= tx1) & (tile_y >= ty0) & (tile_y <= ty1)
         dx = means2d[i, 0].to(dt) - xs
         dy = means2d[i, 1].to(dt) - ys
@@ -224,6 +223,21 @@ def test_scenes_exercise_the_edge_cases(cpu):
     assert SCENES[1]["width"] % TILE and SCENES[1]["height"] % TILE
 
 
+def test_tile_binning_at_a_float32_rounding_boundary(cpu):
+    # m + r = 32 - 2^-20 rounds up to 32.0 in float32 but not in exact arithmetic: the Gaussian must not
+    # reach the third tile column (x >= 32), exactly as the reference bins.
+    mx = 16.0 - 2.0 ** -20
+    scene = dict(means2d=torch.tensor([[mx, 8.0]]), conics=torch.tensor([[0.02, 0.0, 0.02]]),
+                 colors=torch.tensor([[1.0, 0.0, 0.0]]), opacities=torch.tensor([0.99]), depths=torch.tensor([1.0]),
+                 radii=torch.tensor([16], dtype=torch.int32), width=48, height=16, background=torch.zeros(3))
+    assert float(scene["means2d"][0, 0]) + 16 < 32 and float(scene["means2d"][0, 0] + 16) == 32.0
+    color, _, alpha = cpu(**scene)
+    assert float(alpha[:, 32:].max()) == 0.0
+    assert float(alpha[8, 31]) > 0  # close to the boundary the Gaussian is still visible
+    ref_color, _, _ = oracle(**scene)
+    assert float((color.double() - ref_color).abs().max()) < 1e-5
+
+
 def test_deterministic_across_thread_counts(cpu):
     scene = random_scene(seed=11, n=400, width=70, height=45, spread=9.0)
     before = torch.get_num_threads()
@@ -314,8 +328,8 @@ def test_oracle_agrees_with_a_plain_pixel_loop():
                 r = int(rad[i])
                 if r <= 0:
                     continue
-                tx = (math.floor(float((scene["means2d"][i, 0] - r) / 16)), math.floor(float((scene["means2d"][i, 0] + r) / 16)))
-                ty = (math.floor(float((scene["means2d"][i, 1] - r) / 16)), math.floor(float((scene["means2d"][i, 1] + r) / 16)))
+                tx = (math.floor((float(m[i, 0]) - r) / 16), math.floor((float(m[i, 0]) + r) / 16))
+                ty = (math.floor((float(m[i, 1]) - r) / 16), math.floor((float(m[i, 1]) + r) / 16))
                 if not (tx[0] <= x // 16 <= tx[1] and ty[0] <= y // 16 <= ty[1]):
                     continue
                 dx, dy = float(m[i, 0]) - (x + 0.5), float(m[i, 1]) - (y + 0.5)

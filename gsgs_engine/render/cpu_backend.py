@@ -37,7 +37,10 @@ _lock = threading.Lock()
 _state: dict = {}  # "ops" -> torch.ops namespace, or "error" -> reason (one attempt per process)
 
 
+@functools.lru_cache(maxsize=1)
 def _source_hash() -> str:
+    import platform
+
     import torch
 
     h = hashlib.sha256()
@@ -50,6 +53,7 @@ def _source_hash() -> str:
     h.update(" ".join(CFLAGS).encode())
     h.update(torch.__version__.encode())
     h.update(sys.version.encode())
+    h.update(f"{sys.platform} {platform.machine()}".encode())  # a home folder shared across machines
     return h.hexdigest()[:16]
 
 
@@ -125,12 +129,16 @@ def _load(verbose: bool = False, announce: bool = False):
     import torch
 
     if is_built():
-        torch.ops.load_library(str(build_dir() / f"{_library_name()}.so"))
-    else:
-        if announce:
-            print(f"gsgs: compiling the CPU rasteriser into {build_dir()} (first use only, about a minute)",
-                  file=sys.stderr, flush=True)
-        _compile(verbose=verbose)
+        try:
+            torch.ops.load_library(str(build_dir() / f"{_library_name()}.so"))
+            return getattr(torch.ops, _OP_NAMESPACE)
+        except OSError:  # a damaged or foreign library file: build it again below
+            (build_dir() / _READY_MARKER).unlink(missing_ok=True)
+            (build_dir() / f"{_library_name()}.so").unlink(missing_ok=True)
+    if announce:
+        print(f"gsgs: compiling the CPU rasteriser into {build_dir()} (first use only, about a minute)",
+              file=sys.stderr, flush=True)
+    _compile(verbose=verbose)
     return getattr(torch.ops, _OP_NAMESPACE)
 
 

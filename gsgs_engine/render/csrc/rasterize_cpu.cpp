@@ -8,13 +8,14 @@
 // Layout of the work:
 //   * visible Gaussians are sorted once by (depth, index) with a stable radix sort; tile lists then hold
 //     sorted ranks, so binning in rank order yields depth-sorted tile lists without a per-tile sort;
-//   * each tile is rendered Gaussian-major: for every Gaussian, the 16-wide pixel rows it can reach are
-//     updated with branch-free, auto-vectorised lane loops (a polynomial exp keeps them vectorisable);
+//   * each tile is rendered Gaussian-major: for every Gaussian, the 8-pixel row segments its alpha
+//     ellipse can reach are updated with branch-free 8-lane vector code (a polynomial exp, no libm);
 //   * the backward pass walks each tile's list back to front, reconstructing T per pixel as 3DGS's CUDA
 //     backward does, and writes one gradient record per (tile, Gaussian) entry; records are then summed
 //     per Gaussian in a fixed order, so results are deterministic for any thread count.
-// Threads come from ATen's pool (at::parallel_for, torch.get_num_threads()), tiles are handed out
-// dynamically, largest first.
+// Threads come from ATen's pool (at::parallel_for: OpenMP in the PyTorch wheels, sized by
+// torch.get_num_threads(), so no second OpenMP runtime is linked); tiles are handed out dynamically,
+// largest first.
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
@@ -180,14 +181,15 @@ struct TileRect {
   int x0, x1, y0, y1;  // inclusive tile index range
 };
 
-// Tiles touched by a Gaussian: [floor((m - r) / 16), floor((m + r) / 16)] clipped to the grid.
+// Tiles touched by a Gaussian: [floor((m - r) / 16), floor((m + r) / 16)] clipped to the grid. In
+// double, as the reference bins: float32 m + r can round up onto a tile boundary.
 GSGS_INLINE bool tile_rect(float mx, float my, int radius, int tiles_x, int tiles_y, TileRect* rect) {
   if (radius <= 0 || !std::isfinite(mx) || !std::isfinite(my)) return false;
-  const float r = static_cast<float>(radius);
-  const float x0 = std::max(std::floor((mx - r) / static_cast<float>(kTile)), 0.0f);
-  const float x1 = std::min(std::floor((mx + r) / static_cast<float>(kTile)), static_cast<float>(tiles_x - 1));
-  const float y0 = std::max(std::floor((my - r) / static_cast<float>(kTile)), 0.0f);
-  const float y1 = std::min(std::floor((my + r) / static_cast<float>(kTile)), static_cast<float>(tiles_y - 1));
+  const double r = static_cast<double>(radius), x = mx, y = my;
+  const double x0 = std::max(std::floor((x - r) / kTile), 0.0);
+  const double x1 = std::min(std::floor((x + r) / kTile), static_cast<double>(tiles_x - 1));
+  const double y0 = std::max(std::floor((y - r) / kTile), 0.0);
+  const double y1 = std::min(std::floor((y + r) / kTile), static_cast<double>(tiles_y - 1));
   if (!(x0 <= x1 && y0 <= y1)) return false;
   rect->x0 = static_cast<int>(x0);
   rect->x1 = static_cast<int>(x1);
