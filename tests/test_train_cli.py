@@ -108,7 +108,7 @@ def test_train_command_in_process_writes_everything(tiny_scene, tmp_path):
     from gsgs_engine.job import ProgressReader, read_status
 
     out = tmp_path / "run"
-    rc = main(["train", str(tiny_scene), "--out", str(out), "--iters", "12", "--sh-degree", "1",
+    rc = main(["train", str(tiny_scene), "--out", str(out), "--iters", "12", "--sh-degree", "1", "--init-points", "300",
                "--checkpoint-every", "5"])
     assert rc == 0
     metrics = _check_result(out, 12)
@@ -140,7 +140,7 @@ def test_run_train_job_trains_cancels_and_resumes(tiny_scene, tmp_path):
     from gsgs_engine.train import checkpoint as ckpt
 
     job = Job.create(tmp_path / "job", "train", data={"path": str(tiny_scene), "format": "blender"},
-                     settings={"iters": 8, "sh_degree": 0, "checkpoint_every": 4})
+                     settings={"iters": 8, "sh_degree": 0, "checkpoint_every": 4, "random_init_points": 300})
     job.request_cancel()
     import argparse
     assert run_job(argparse.Namespace(job_dir=str(job.root))) == 0
@@ -169,7 +169,7 @@ def test_job_settings_are_checked(tmp_path):
 def test_gsgs_train_subprocess_end_to_end(tiny_scene, tmp_path):
     out = tmp_path / "run"
     t0 = time.monotonic()
-    proc = _gsgs("train", tiny_scene, "--out", out, "--iters", "10", "--sh-degree", "0")
+    proc = _gsgs("train", tiny_scene, "--out", out, "--iters", "10", "--sh-degree", "0", "--init-points", "300")
     assert proc.returncode == 0, proc.stderr
     assert "done: 10 steps" in proc.stderr
     _check_result(out, 10)
@@ -179,8 +179,8 @@ def test_gsgs_train_subprocess_end_to_end(tiny_scene, tmp_path):
 @pytest.mark.slow
 def test_sigterm_then_resume_finishes_the_same_schedule(tiny_scene, tmp_path):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "gsgs_engine", "train", str(tiny_scene), "--out", str(out), "--iters", "300",
-           "--sh-degree", "0", "--checkpoint-every", "1000"]
+    cmd = [sys.executable, "-m", "gsgs_engine", "train", str(tiny_scene), "--out", str(out), "--iters", "80",
+           "--sh-degree", "0", "--checkpoint-every", "1000", "--init-points", "300"]
     proc = subprocess.Popen(cmd, cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 300
@@ -205,12 +205,12 @@ def test_sigterm_then_resume_finishes_the_same_schedule(tiny_scene, tmp_path):
     ckpts = list((out / "checkpoints").glob("ckpt_*.pt"))
     assert len(ckpts) == 1
     stopped_at = int(ckpts[0].stem.split("_")[1])
-    assert 3 <= stopped_at < 300
-    # resume with a different --iters: the checkpoint's schedule (300 steps) is kept
+    assert 3 <= stopped_at < 80
+    # resume with a different --iters: the checkpoint's schedule (80 steps) is kept
     proc2 = _gsgs("train", tiny_scene, "--out", out, "--iters", "5", "--sh-degree", "0", "--resume")
     assert proc2.returncode == 0, proc2.stderr
     assert f"resuming from" in proc2.stderr
-    _check_result(out, 300)
+    _check_result(out, 80)
 
 
 # -- progress output -------------------------------------------------------------------------------

@@ -51,6 +51,7 @@ def save_checkpoint(directory: Path, step: int, state: dict, keep: int = KEEP) -
             torch.save(state, fh)
             fh.flush()
             os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; a checkpoint is an ordinary output file
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

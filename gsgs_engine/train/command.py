@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in OUT/checkpoints")
     parser.add_argument("--init", default="auto", choices=["auto", "sfm", "points", "random"],
                         help="initial Gaussians: SfM of the training views, the source's points, or random")
+    parser.add_argument("--init-points", type=int, default=None,
+                        help="number of random Gaussians when there are too few SfM points (default 5000)")
     parser.add_argument("--random-background", action="store_true",
                         help="RGBA scenes: a random background colour each step (target composited on the same)")
     bg = parser.add_mutually_exclusive_group()
@@ -69,6 +71,10 @@ def run(args: argparse.Namespace) -> int:
     config = TrainConfig(iters=args.iters, sh_degree=args.sh_degree, backend=args.backend, seed=args.seed,
                          checkpoint_every=args.checkpoint_every, random_background=args.random_background,
                          init=args.init)
+    if args.init_points is not None:
+        if args.init_points < 1:
+            raise GsgsError(f"--init-points must be at least 1 (got {args.init_points})")
+        config.random_init_points = args.init_points
     validate_config(config)
     out = Path(args.out)
     job = Job(root=out, spec={"task": "train"})  # a job-like folder; job.json is written only by Job.create

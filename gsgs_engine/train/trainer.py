@@ -196,6 +196,7 @@ class Trainer:
         self.last_losses: dict[str, float] = {}
         self.densify_log: list[dict] = []
         self._signal: int | None = None
+        self.backend_used: str | None = None
 
         t0 = time.perf_counter()
         self.extent = self._extent()
@@ -314,6 +315,7 @@ class Trainer:
         bg = self._step_background()
         target = self._target(i, bg)
         out = self.render(self.train_views[i].camera, bg)
+        self.backend_used = getattr(out, "backend", self.config.backend)
         terms = photometric_terms(out.color, target, cfg.lambda_dssim)
         ctx = StepContext(self, step, i, out, target, bg)
         renders = [(out, self.train_views[i].camera)]
@@ -516,7 +518,8 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
             f"LPIPS {evaluation['lpips'] if evaluation['lpips'] is not None else 'n/a'}")
     first = trainer.train_views[0].camera
     full_plan = {
-        "backend": trainer.config.backend, "prior": "none", "sh_degree": trainer.config.sh_degree,
+        "backend": trainer.backend_used or trainer.config.backend, "backend_requested": trainer.config.backend,
+        "prior": "none", "sh_degree": trainer.config.sh_degree,
         "init": trainer.init_info.to_dict(), "background": [float(x) for x in trainer.background],
         "random_background": bool(trainer.config.random_background and scene.has_alpha),
         "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
