@@ -365,12 +365,13 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
         const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
         if (!any(valid)) continue;
-        const vf one_minus = 1.0f - alpha;
-        const vf T_before = T[v] / one_minus;
+        const vf one_minus = 1.0f - alpha;  // >= 0.01
+        const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
+        const vf T_before = T[v] * inv_one_minus;
         const vf w = select(valid, alpha * T_before, splat(0.0f));
         const vf dL_dalpha = T_before * (gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]) +
                                          gz[v] * (s.depth - Sz[v])) +
-                             K[v] / one_minus;
+                             K[v] * inv_one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
         const vf dL_dpower = dL_doG * oG;
