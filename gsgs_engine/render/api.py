@@ -8,7 +8,6 @@ oracle). "auto" picks the first usable one in that order. Projection is always o
 
 from __future__ import annotations
 
-import logging
 import warnings
 from dataclasses import dataclass
 
@@ -19,8 +18,6 @@ from gsgs_engine.cameras import Camera
 from gsgs_engine.render.project import project_gaussians
 from gsgs_engine.render.reference import rasterize_reference
 from gsgs_engine.render.sh import num_sh_bases
-
-log = logging.getLogger(__name__)
 
 BACKENDS = ("auto", "reference", "cpu", "cuda")
 _warned_cpu_fallback = False
@@ -77,7 +74,6 @@ def _warn_cpu_fallback(reason: str) -> None:
         msg = (f"gsgs: compiled CPU rasteriser unavailable ({reason}); using the much slower pure-torch "
                "reference rasteriser. Run `gsgs build-ext` to build it.")
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
-        log.warning(msg)
 
 
 def select_backend(backend: str, device: torch.device, dtype: torch.dtype | None = None) -> str:

@@ -83,7 +83,7 @@ def run_cell(backend: str, n: int, resolution: int, repeats: int, budget_s: floa
 
     import torch
 
-    from gsgs_engine.render import render
+    from gsgs_engine.render import render, select_backend
 
     if threads:
         torch.set_num_threads(threads)
@@ -107,6 +107,9 @@ def run_cell(backend: str, n: int, resolution: int, repeats: int, budget_s: floa
         for leaf in leaves:
             leaf.grad = None
 
+    # Resolve the backend first: for "cpu" this loads (or, after a source change, compiles) the
+    # extension, which must not be counted as rendering time.
+    select_backend(backend, torch.device(device), torch.float32)
     if device == "cuda":
         torch.cuda.synchronize()
         base_alloc = torch.cuda.memory_allocated()

@@ -8,7 +8,6 @@ the backward pass through them.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -144,7 +143,3 @@ def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Te
         center = torch.as_tensor(camera.center, dtype=dtype, device=device)
         colors = view_colors(means, sh, sh_degree, center)
     return Projection(means2d=means2d, conics=conics, depths=z_safe, radii=radii, colors=colors, visible=visible)
-
-
-def tile_grid(width: int, height: int, tile_size: int = 16) -> tuple[int, int]:
-    return math.ceil(width / tile_size), math.ceil(height / tile_size)
