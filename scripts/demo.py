@@ -44,6 +44,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="prior for the second run (default: gsgs train's default prior, when one exists)")
     p.add_argument("--rerender", action="store_true", help="render the dataset again even if it is complete")
     p.add_argument("--skip-train", action="store_true", help="only render the dataset (and the .blend with cameras)")
+    p.add_argument("--reuse-runs", action="store_true",
+                   help="keep a run that already finished on the current dataset with the same prior and steps")
     p.add_argument("--threads", type=int, default=0, help="Cycles CPU threads (0 = all cores)")
     return p.parse_args(argv)
 
@@ -97,13 +99,29 @@ def train_prior_options() -> tuple[list[str], str | None]:
 
 
 def parse_prior_help(text: str) -> tuple[list[str], str | None]:
+    """--prior's choices and default from `gsgs train --help`: argparse's "{a,b}" form, or prose
+    such as "generative prior: none (plain 3DGS, the default), depth, warp or auto"."""
     help_text = " ".join(text.split())  # argparse wraps lines
-    m = re.search(r"--prior \{([^}]*)\}", help_text)
-    choices = [c.strip() for c in m.group(1).split(",")] if m else []
     option = re.search(r"--prior\b(.*?)(?= --[a-z]|$)", help_text)  # this option's help, up to the next option
-    d = re.search(r"\(default:?\s*([\w.-]+)\)", option.group(1)) if option else None
+    segment = option.group(1) if option else ""
+    d = re.search(r"\(default:?\s*([\w.-]+)\)", segment)
     default = d.group(1) if d else None
-    return choices, default
+    m = re.search(r"\{([^}]*)\}", segment)
+    if m:
+        return [c.strip() for c in m.group(1).split(",")], default
+    listed = re.search(r":(.*)", segment)
+    if not listed:
+        return [], default
+    marked = re.search(r"([a-z][\w-]*)\s*\([^)]*\bthe default\b[^)]*\)", listed.group(1))
+    if marked and default is None:
+        default = marked.group(1)
+    choices = []
+    for item in re.split(r",|\bor\b", re.sub(r"\([^)]*\)?", "", listed.group(1))):
+        word = item.strip()
+        if not re.fullmatch(r"[a-z][\w-]*", word):
+            break  # the list ended
+        choices.append(word)
+    return (choices if "none" in choices else []), default
 
 
 def pick_prior(requested: str | None, options: tuple[list[str], str | None] | None = None) -> str | None:
@@ -120,7 +138,26 @@ def pick_prior(requested: str | None, options: tuple[list[str], str | None] | No
     return others[0] if others else None
 
 
+def finished_run(scene_dir: Path, run_dir: Path, prior: str, iters: int) -> dict | None:
+    """metrics.json of a finished run of this prior and length, newer than the dataset; else None."""
+    try:
+        status = json.loads((run_dir / "status.json").read_text())
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        newer = (run_dir / "metrics.json").stat().st_mtime > (scene_dir / "demo_dataset.json").stat().st_mtime
+    except (OSError, ValueError):
+        return None
+    ok = (status.get("status") == "ok" and newer and metrics.get("iterations") == iters
+          and (metrics.get("plan") or {}).get("prior", prior) == prior and (run_dir / "point_cloud.ply").is_file())
+    return metrics if ok else None
+
+
 def train_run(scene_dir: Path, run_dir: Path, prior: str, args: argparse.Namespace) -> dict:
+    if args.reuse_runs:
+        metrics = finished_run(scene_dir, run_dir, prior, args.iters)
+        if metrics is not None:
+            log(f"reusing the finished run in {run_dir} (--reuse-runs)")
+            return {"run": run_dir.name, "prior": prior, "ok": True, "wall_seconds": None,
+                    "metrics": metrics, "ply": str(run_dir / "point_cloud.ply"), "reused": True}
     cmd = [sys.executable, "-m", "gsgs_engine", "train", str(scene_dir), "--out", str(run_dir),
            "--iters", str(args.iters), "--backend", args.backend, "--prior", prior]
     if run_dir.exists():
@@ -148,10 +185,11 @@ def metrics_table(runs: list[dict]) -> str:
     lines = [header, "|---" * (header.count("|") - 1) + "|"]
     for r in runs:
         m = r.get("metrics") or {}
+        wall = "reused" if r.get("reused") else f"{r['wall_seconds']:.0f}{'' if r['ok'] else ' (failed)'}"
         lines.append(f"| {r['run']} | {r['prior']} | {_fmt(m.get('psnr'), '.2f')} | {_fmt(m.get('ssim'), '.4f')} | "
                      f"{_fmt(m.get('lpips'), '.4f')} | {_fmt(m.get('num_gaussians'), 'd')} | "
                      f"{_fmt(m.get('iterations'), 'd')} | {_fmt(m.get('train_seconds'), '.0f')} | "
-                     f"{r['wall_seconds']:.0f}{'' if r['ok'] else ' (failed)'} |")
+                     f"{wall} |")
     return "\n".join(lines)
 
 

@@ -404,8 +404,13 @@ def test_exporter_agrees_with_the_add_on_camera_conversion():
 def test_demo_finds_the_default_prior_in_gsgs_train_help():
     demo = _load_script("demo")
     plain = "  --prior PRIOR         generative prior: none (plain 3DGS)\n  --seed SEED\n"
-    assert demo.parse_prior_help(plain) == ([], None)
+    assert demo.parse_prior_help(plain) == (["none"], None)
     assert demo.pick_prior(None, demo.parse_prior_help(plain)) is None
+    prose = ("  --prior PRIOR         generative prior: none (plain 3DGS, the default),\n"
+             "                        depth, warp, diffusion or auto (see\n"
+             "                        gsgs_engine.pipeline)\n  --seed SEED\n")
+    assert demo.parse_prior_help(prose) == (["none", "depth", "warp", "diffusion", "auto"], "none")
+    assert demo.pick_prior(None, demo.parse_prior_help(prose)) == "auto"
     wrapped = ("  --prior {none,warp,diffusion,auto}\n                        generative prior, e.g. "
                "warp-inpaint (default: auto)\n"
                "  --seed SEED\n")
