@@ -187,7 +187,8 @@ def metrics_table(runs: list[dict]) -> str:
     for r in runs:
         m = r.get("metrics") or {}
         wall = "reused" if r.get("reused") else f"{r['wall_seconds']:.0f}{'' if r['ok'] else ' (failed)'}"
-        lines.append(f"| {r['run']} | {r['prior']} | {_fmt(m.get('psnr'), '.2f')} | {_fmt(m.get('ssim'), '.4f')} | "
+        prior = (m.get("plan") or {}).get("prior") or r["prior"]  # e.g. "auto:warp": what auto chose
+        lines.append(f"| {r['run']} | {prior} | {_fmt(m.get('psnr'), '.2f')} | {_fmt(m.get('ssim'), '.4f')} | "
                      f"{_fmt(m.get('lpips'), '.4f')} | {_fmt(m.get('num_gaussians'), 'd')} | "
                      f"{_fmt(m.get('iterations'), 'd')} | {_fmt(m.get('train_seconds'), '.0f')} | "
                      f"{wall} |")
