@@ -4,14 +4,13 @@ Vectorised over 16x16 tiles: each chunk of tiles is blended against only the Gau
 binned to it, padded to a common list length. Front-to-back compositing is a cumulative
 product; the per-pixel early stop (3DGS: a Gaussian that would push T below 1e-4 is not
 added, and nothing after it) becomes a prefix mask computed without gradient. Each chunk
-is wrapped in activation checkpointing, so memory stays bounded by one chunk in both the
-forward and the backward pass. Works in float32 and float64.
+keeps only its inputs and is recomputed in the backward pass (activation checkpointing), so
+memory stays bounded by one chunk in both passes. Works in float32 and float64.
 """
 
 from __future__ import annotations
 
 import torch
-from torch.utils.checkpoint import checkpoint
 
 TILE_SIZE = 16
 PIXELS_PER_TILE = TILE_SIZE * TILE_SIZE
@@ -98,6 +97,43 @@ def _blend_block(T_in, done_in, px, py, means2d, conics, colors, opacities, dept
     return color, depth, T_out, done_out
 
 
+class _RecomputedBlend(torch.autograd.Function):
+    """_blend_block that saves only its inputs and recomputes its graph in backward.
+
+    (torch.utils.checkpoint would do the same, but its first use imports sympy and friends,
+    which costs seconds per process.)
+    """
+
+    @staticmethod
+    def forward(ctx, T_in, done_in, px, py, means2d, conics, colors, opacities, depths, valid):
+        ctx.save_for_backward(T_in, done_in, px, py, means2d, conics, colors, opacities, depths, valid)
+        with torch.no_grad():
+            color, depth, T_out, done_out = _blend_block(T_in, done_in, px, py, means2d, conics, colors, opacities,
+                                                         depths, valid)
+        ctx.mark_non_differentiable(done_out)
+        return color, depth, T_out, done_out
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_color, grad_depth, grad_T, _grad_done):
+        saved = ctx.saved_tensors
+        wanted = [i for i, need in enumerate(ctx.needs_input_grad) if need]
+        inputs = [x.detach().requires_grad_(i in wanted) for i, x in enumerate(saved)]
+        with torch.enable_grad():
+            color, depth, T_out, _ = _blend_block(*inputs)
+        outputs, grads_out = [], []
+        for out, g in ((color, grad_color), (depth, grad_depth), (T_out, grad_T)):
+            if g is not None:
+                outputs.append(out)
+                grads_out.append(g)
+        grads = [None] * len(saved)
+        if wanted and outputs:
+            found = torch.autograd.grad(outputs, [inputs[i] for i in wanted], grads_out, allow_unused=True)
+            for i, g in zip(wanted, found):
+                grads[i] = g
+        return tuple(grads)
+
+
 def rasterize_reference(means2d: torch.Tensor, conics: torch.Tensor, colors: torch.Tensor, opacities: torch.Tensor,
                         depths: torch.Tensor, radii: torch.Tensor, width: int, height: int,
                         background: torch.Tensor, max_elements: int = DEFAULT_MAX_ELEMENTS):
@@ -145,7 +181,7 @@ def rasterize_reference(means2d: torch.Tensor, conics: torch.Tensor, colors: tor
             g = gauss_ids[slot]
             args = (T, done, px, py, means2d[g], conics[g], colors[g], opacities[g], depths[g], valid)
             if needs_grad:
-                c, d, T, done = checkpoint(_blend_block, *args, use_reentrant=False)
+                c, d, T, done = _RecomputedBlend.apply(*args)
             else:
                 c, d, T, done = _blend_block(*args)
             color = color + c
