@@ -22,6 +22,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "rasterizer": ("gsgs_engine.render.bench", "forward / backward time and memory of each rasteriser backend"),
+    "accuracy": ("gsgs_engine.bench_accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
+    "dynamic": ("gsgs_engine.bench_dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
 }
 
 
