@@ -155,8 +155,9 @@ def initialise_gaussians(scene, train_views, config: TrainConfig, generator: tor
                 reasons.append(f"triangulation gave {len(pts)} points (< {config.min_init_points})")
     if config.init in ("auto", "points"):
         if scene.points is not None and len(scene.points) >= config.min_init_points:
-            info = InitInfo("points", len(scene.points), "the source's sparse points ("
-                            + "; ".join(reasons) + ")" if reasons else "the source's sparse points")
+            # the source's points (e.g. a COLMAP model of all photos) may include test-view evidence
+            what = "the source's sparse points (may include points seen only by non-training views)"
+            info = InitInfo("points", len(scene.points), f"{what}; {'; '.join(reasons)}" if reasons else what)
             return GaussianModel.from_points(scene.points, scene.point_colors, config.sh_degree), info
         n = 0 if scene.points is None else len(scene.points)
         reasons.append(f"the source has {n} sparse points (< {config.min_init_points})")
