@@ -305,6 +305,16 @@ def test_second_load_reuses_the_build(cpu):
     assert cpu_backend.unavailable_reason() is None
 
 
+def test_build_error_summary_names_the_compiler_error():
+    log = ("Error building extension 'gsgs_rasterize_cpu_x': [1/2] c++ -MMD -c rasterize_cpu.cpp -o rasterize_cpu.o\n"
+           "FAILED: rasterize_cpu.o\n"
+           "rasterize_cpu.cpp:12:3: error: 'foo' was not declared in this scope\n"
+           "ninja: build stopped: subcommand failed.\n")
+    summary = cpu_backend._summarise_build_error(RuntimeError(log))
+    assert summary == "rasterize_cpu.cpp:12:3: error: 'foo' was not declared in this scope"
+    assert cpu_backend._summarise_build_error(RuntimeError("ninja is not installed")) == "ninja is not installed"
+
+
 def test_build_dir_is_keyed_and_overridable(monkeypatch, tmp_path):
     monkeypatch.setenv("GSGS_BUILD_DIR", str(tmp_path))
     d = cpu_backend.build_dir()

@@ -75,9 +75,10 @@ def _library_name() -> str:
 def _summarise_build_error(exc: BaseException) -> str:
     """The compiler's first error lines (the full log is in the exception / build folder)."""
     text = str(exc)
-    lines = [line.strip() for line in text.splitlines()]
-    errors = [line for line in lines if "error" in line.lower() and line]
-    picked = errors[:3] if errors else [line for line in lines if line][-3:]
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    compiler = [line for line in lines if "error:" in line.lower()]  # "file:line:col: error: ..."
+    other = [line for line in lines if "error" in line.lower() and not line.startswith("[")]
+    picked = compiler[:2] or other[:2] or lines[-2:]
     return " | ".join(picked)[:600] or type(exc).__name__
 
 
