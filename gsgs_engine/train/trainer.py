@@ -12,7 +12,6 @@ Extension points for the generative prior (Alg. 1):
 
 from __future__ import annotations
 
-import json
 import signal
 import threading
 import time
