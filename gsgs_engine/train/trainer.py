@@ -30,8 +30,9 @@ from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_p
 from gsgs_engine.train.losses import photometric_terms, total_loss
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
-# About 0.5-1 CPU-second per step on lego_200 (200 px, a few thousand Gaussians, cpu backend,
-# 2 threads): 1000 steps fit the 10-minute budget of a free 2-core machine.
+# Measured on lego_200 (8 views, 200 px, cpu backend) on a heavily shared 2-core machine:
+# 0.5-0.8 CPU-seconds per step while the model holds 0.2k-7k Gaussians. 1000 steps is an
+# estimate of what fits 10 minutes on a free 2-core machine; not yet measured end to end.
 DEFAULT_ITERS = 1000
 CHECKPOINT_FORMAT = 1
 
