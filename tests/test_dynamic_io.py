@@ -205,3 +205,19 @@ def test_blender_dynamic_scene_renders_a_loadable_clip(tmp_path):
     for cam in cams:
         uv, z = cam.project(np.array([[0.0, 0.0, 0.35]]))
         assert z[0] > 0 and np.allclose(uv[0], [8.0, 8.0], atol=0.5)
+
+
+def test_load_scene_routes_time_data_to_the_camera_protocol(tmp_path):
+    write_nerf_with_time(tmp_path / "nerf", n_cams=5, n_frames=3)
+    scene = load_scene(tmp_path / "nerf", train_views=2)
+    assert scene.has_time
+    train_cams = {camera_index(v) for v in scene.train}
+    assert len(train_cams) == 2 and 0 not in train_cams
+    assert {camera_index(v) for v in scene.test} == {0}
+    write_n3dv(tmp_path / "n3dv", n_cams=5, n_frames=3)
+    from gsgs_engine.io.loader import detect_format
+
+    assert detect_format(tmp_path / "n3dv") == "n3dv"
+    assert load_scene(tmp_path / "n3dv", train_views=3).has_time
+    with pytest.raises(GsgsError, match="--train-views"):
+        load_scene(tmp_path / "nerf", train_ids=[1])

@@ -10,7 +10,7 @@ import numpy as np
 from gsgs_engine import GsgsError
 from gsgs_engine.io.scene import Scene
 
-FORMATS = ("auto", "blender", "llff", "colmap", "photos", "job")
+FORMATS = ("auto", "blender", "llff", "colmap", "photos", "job", "n3dv")
 
 
 def detect_format(path) -> str:
@@ -34,6 +34,10 @@ def detect_format(path) -> str:
                         "pass the scene folder instead")
     if (path / "job.json").is_file():
         return "job"
+    from gsgs_engine.io.dynamic import is_n3dv
+
+    if is_n3dv(path):
+        return "n3dv"
     if transforms_files(path):
         return "blender"
     if (path / "poses_bounds.npy").is_file():
@@ -74,6 +78,17 @@ def load_scene(path, format: str = "auto", train_split: str | None = None, train
                               resolution_scale=resolution_scale, background=background)
     scale = 1.0 if resolution_scale is None else float(resolution_scale)
     bg = (1.0, 1.0, 1.0) if background is None else background
+    from gsgs_engine.io.dynamic import has_time
+
+    if fmt == "n3dv" or (fmt == "blender" and has_time(path)):
+        # Multi-view video: the protocol picks training *cameras* (train_views), camera 0 is the test camera.
+        from gsgs_engine.io.dynamic import load_dynamic_scene
+
+        if train_ids is not None or train_split is not None:
+            raise GsgsError(f"{path}: a scene with time picks training cameras with --train-views N "
+                            "(camera 0 is held out); --train-ids / --train-split do not apply")
+        return load_dynamic_scene(path, format=fmt, train_cameras=train_views, resolution_scale=scale,
+                                  background=bg)
     if fmt == "blender":
         from gsgs_engine.io.nerf_synthetic import load_nerf_synthetic
 
