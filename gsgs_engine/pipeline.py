@@ -123,6 +123,14 @@ def _depth_png(inv: torch.Tensor, mask: torch.Tensor | None = None) -> np.ndarra
     return _to_u8(d)
 
 
+def _same_moment(photos, camera):
+    """For a dynamic scene only photos taken at the pseudo view's time can be warped into it."""
+    if camera.time is None:
+        return photos
+    same = [ph for ph in photos if ph.camera.time is not None and abs(ph.camera.time - camera.time) < 1e-6]
+    return same or photos
+
+
 class PriorLoop:
     """Installs itself on a Trainer: pseudo views, rounds, and the depth-regulariser loss term."""
 
@@ -147,7 +155,14 @@ class PriorLoop:
         self.trainer = trainer
         cams = [v.camera for v in trainer.train_views]
         self.steps = round_steps(trainer.config.iters, self.cfg.warmup_fraction, self.plan.get("rounds", 0))
-        if self.plan["generator"]:
+        if self.plan["generator"] and trainer.scene.has_time:
+            # 4D: pseudo poses at sampled times, each tied to a training photo of the same moment
+            from gsgs_engine.train.dynamic import spacetime_pseudo_views, views_by_frame
+
+            per_time = max(1, self.cfg.num_pseudo // max(len(views_by_frame(trainer.train_views)), 1))
+            self.pseudo = spacetime_pseudo_views(trainer.train_views, per_time, jitter=self.cfg.jitter,
+                                                 seed=trainer.config.seed)
+        elif self.plan["generator"]:
             self.pseudo = interpolated_pseudo_views(cams, self.cfg.num_pseudo, self.cfg.jitter, trainer.config.seed)
             self.pseudo += authored_pseudo_views(self.plan.get("authored_poses", []), cams)
         t0 = time.perf_counter()
@@ -265,7 +280,7 @@ class PriorLoop:
 
         images, cover = [], []
         for p, out in zip(self.pseudo, renders):
-            img, s = warp_inpaint(p.camera, out.color, out.depth, out.alpha, photos)
+            img, s = warp_inpaint(p.camera, out.color, out.depth, out.alpha, _same_moment(photos, p.camera))
             images.append(img)
             cover.append(s)
         stats["warped_fraction"] = float(np.mean([s["warped"] for s in cover])) if cover else 0.0
