@@ -264,3 +264,22 @@ def test_bench_runs_all_three_variants(clip, tmp_path):
     assert results["static_per_frame"]["models"] == 3 and results["static_per_frame"]["iters"] == 12
     assert (tmp_path / "4d" / "point_cloud.ply").is_file()
     assert "static_per_frame" in format_table(results)
+
+
+def test_gsgs_train_on_time_data_exports_a_4d_ply(tmp_path):
+    """The main command picks the 4D model only because the data has time, and the PLY carries it."""
+    import subprocess
+    import sys
+
+    from gsgs_engine.io.ply import read_gaussian_ply
+    from test_dynamic_io import write_nerf_with_time
+
+    write_nerf_with_time(tmp_path / "clip", n_cams=4, n_frames=3, size=16)
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "gsgs_engine", "train", str(tmp_path / "clip"), "--out", str(out),
+                           "--iters", "6", "--train-views", "2", "--backend", "reference", "--init", "random",
+                           "--init-points", "200", "--sh-degree", "0"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    ply = read_gaussian_ply(out / "point_cloud.ply")
+    assert "t_center" in ply.extra and "motion_0" in ply.extra

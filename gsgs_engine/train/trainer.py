@@ -494,8 +494,11 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         progress.message(message)
         _append_log(log_path, message)
 
-    trainer = Trainer(scene, config, checkpoint_dir=checkpoint_dir,
-                      cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
+    # A scene with time gets the 4D (SpacetimeGS-lite) trainer; a static scene never carries temporal params.
+    from gsgs_engine.train.dynamic import make_trainer
+
+    trainer = make_trainer(scene, config, checkpoint_dir=checkpoint_dir,
+                           cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
     trainer.setup(resume=resume)
     if setup_trainer is not None:
         setup_trainer(trainer)
