@@ -257,7 +257,8 @@ def plot(records: list[dict], path: Path, title: str) -> None:
                "diffusion": "tab:red"}
     for r, (s, q) in zip(rows, pts):
         ax.scatter(s, q, color=colours.get(r["settings"]["prior"], "tab:gray"), s=28, zorder=3)
-        ax.annotate(r["id"].replace("_", " "), (s, q), fontsize=6, xytext=(3, 3), textcoords="offset points")
+        label = r["id"].replace("_", " ") + (f" [{preset_of(r['settings'])}]" if preset_of(r["settings"]) else "")
+        ax.annotate(label, (s, q), fontsize=6, xytext=(3, 3), textcoords="offset points")
     if front:
         ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "-", color="black", lw=1.2,
                 marker="o", mfc="none", ms=10, zorder=2, label="Pareto front")
@@ -270,7 +271,8 @@ def plot(records: list[dict], path: Path, title: str) -> None:
     if pts and max(p[0] for p in pts) > 4 * min(p[0] for p in pts):
         ax.set_xscale("log")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.margins(x=0.2, y=0.1)  # room for the labels
+    ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

@@ -1,11 +1,16 @@
 """Presets `fast`, `balanced`, `best`: points on the accuracy/time front of `gsgs bench accuracy`.
 
 Each preset is a bench cell (the same keys as gsgs_engine.bench_accuracy_cell), so the full
-grid measures exactly what a preset runs. Measured cost (this repository's 2-core CPU dev
-machine, shared and loaded, backend auto = the compiled CPU rasteriser; numbers from
-docs/accuracy_lego_200.md, the small grid; the full grids are still to run):
+grid (`gsgs bench accuracy DATA --grid full`) measures exactly what a preset runs.
 
-  lego_200, 8 views:  see docs/accuracy_lego_200.md (fast = it300 none; balanced/best pending)
+Measured so far (docs/accuracy_lego_200.md: lego_200, 8 views, the 2-core shared dev machine
+under load average ~12, backend auto = compiled CPU rasteriser, commit 548cc05):
+  fast      365 s, PSNR 18.26, SSIM 0.743, 1543 Gaussians, 387 MB peak (the plan chose SH 0)
+  balanced  not measured yet (the full grid has not run here)
+  best      not measured yet
+The one prior cell measured (300 iterations, prior auto) scored PSNR 9.88 in 1109 s, far off
+the front (its first round fell right after an opacity reset; see docs/accuracy.md), so
+balanced and best must be re-checked against the full grid before they are trusted.
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,
@@ -19,9 +24,9 @@ from dataclasses import replace
 from gsgs_engine import GsgsError
 
 PRESETS: dict[str, dict] = {
-    # plain 3DGS, short schedule, diffuse colour: the first look in a couple of minutes
+    # plain 3DGS, short schedule: the first look (SH from the plan: its SfM is needed for init anyway)
     "fast": {"iters": 300, "resolution_scale": 1.0, "prior": "none", "pseudo_views": 0, "rounds": 0,
-             "sh_degree": 0, "backend": "auto"},
+             "sh_degree": "auto", "backend": "auto"},
     # the prior where the scene needs it (effect plan), a moderate schedule
     "balanced": {"iters": 1000, "resolution_scale": 1.0, "prior": "auto", "pseudo_views": 8, "rounds": 2,
                  "sh_degree": "auto", "backend": "auto"},

@@ -217,8 +217,11 @@ def test_apply_preset_fills_defaults_and_keeps_typed_flags():
     assert args.effects_overrides == {}
     args = parser.parse_args(["--preset", "fast"])
     apply_preset(args, parser)
-    assert (args.iters, args.prior, args.sh_degree) == (300, "none", 0)
-    assert args.effects_overrides == {"sh_degree": 0, "pseudo_views": "off"}
+    assert (args.iters, args.prior, args.sh_degree) == (300, "none", 3)  # SH: the plan decides
+    assert args.effects_overrides == {"pseudo_views": "off"}
+    args = parser.parse_args(["--preset", "fast", "--sh-degree", "1", "--prior", "auto"])
+    apply_preset(args, parser)
+    assert (args.iters, args.prior, args.sh_degree) == (300, "auto", 1)  # typed flags win
     assert apply_preset(parser.parse_args([]), parser) == {}
     tc, pc, eff, scale = apply_preset((TrainConfig(), PriorConfig()), name="best")
     assert (tc.iters, pc.prior, pc.num_pseudo, pc.rounds, eff, scale) == (3000, "auto", 16, 3, {}, 1.0)
