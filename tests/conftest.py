@@ -7,6 +7,9 @@ from pathlib import Path
 
 import pytest
 
+# Before torch is imported anywhere: idle OpenMP workers sleep rather than spin (see gsgs_engine.cli).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("GSGS_SHARED_DATA", REPO.parent / "shared" / "data"))
 
