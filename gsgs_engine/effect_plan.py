@@ -429,9 +429,6 @@ def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
     """(TrainConfig, PriorConfig) that model exactly the plan's effects (copies; inputs untouched)."""
     from gsgs_engine.pipeline import PriorConfig
 
-    if plan["time"].enabled:
-        raise GsgsError("this scene has time (4D) but the trainer trains static 3D Gaussians only; "
-                        "train one frame (--effects time=off) until 4D training lands")
     tc = replace(train_config, sh_degree=int(plan["sh_degree"].value),
                  random_background=plan["background"].value == "transparent")
     pc = replace(prior_config or PriorConfig(prior="none"))
@@ -444,6 +441,19 @@ def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
     pc.depth_reg = bool(depth)
     pc.depth_source = depth if depth else "none"
     return tc, pc
+
+
+def scene_for_plan(scene, plan: EffectPlan):
+    """The scene the trainer should see: without frame times when the plan keeps it static.
+
+    The trainer builds the 4D (spacetime) model whenever a view carries a time, so a static
+    plan for timed data (one frame in training, or `--effects time=off`) drops the times;
+    the 4D parameters are then never allocated.
+    """
+    if plan["time"].enabled or not scene.has_time:
+        return scene
+    views = [replace(v, camera=replace(v.camera, time=None)) for v in scene.views]
+    return replace(scene, views=views)
 
 
 @contextlib.contextmanager
@@ -493,6 +503,7 @@ def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_di
     effect_plan = plan_effects(scene, train_config, prior_config, overrides, log=log)
     log(effect_plan.format())
     tc, pc = apply_effect_plan(effect_plan, train_config, prior_config)
+    scene = scene_for_plan(scene, effect_plan)
     merged = {**(plan or {}), "effects": effect_plan.to_dict()}
     with shared_triangulation(effect_plan, scene.train):
         metrics = run_prior_training(scene, tc, pc, out_dir, checkpoint_dir, job=job, resume=resume, plan=merged,

@@ -91,9 +91,19 @@ def test_static_vs_dynamic():
     assert static["time"].enabled is False and static["time"].value == "static"
     dynamic = plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]))
     assert dynamic["time"].enabled and dynamic["time"].measured["distinct_times"] == 4
-    with pytest.raises(GsgsError, match="4D"):
-        apply_effect_plan(dynamic, TrainConfig(), AUTO)
-    assert plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]), overrides={"time": "off"})["time"].enabled is False
+    from gsgs_engine.effect_plan import scene_for_plan
+    from gsgs_engine.train.dynamic import SpacetimeTrainer, make_trainer
+
+    timed = make_scene(times=[0.0, 0.3, 0.6, 1.0])
+    assert scene_for_plan(timed, dynamic) is timed  # the trainer builds the 4D model for it
+    off = plan(timed, overrides={"time": "off"})
+    assert off["time"].enabled is False and off["time"].source == "user"
+    flat = scene_for_plan(timed, off)
+    assert flat.has_time is False and timed.has_time  # the input scene is untouched
+    # a static plan never allocates temporal parameters: the plain 3D trainer
+    assert not isinstance(make_trainer(flat, TrainConfig(iters=1, backend="reference")), SpacetimeTrainer)
+    assert isinstance(make_trainer(timed, TrainConfig(iters=1, backend="reference")), SpacetimeTrainer)
+    assert scene_for_plan(make_scene(), static).has_time is False
     with pytest.raises(GsgsError, match="distinct frame times"):
         plan(make_scene(), overrides={"time": "on"})
 
