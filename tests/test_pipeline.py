@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from gsgs_engine import GsgsError
-from gsgs_engine.pipeline import PriorConfig, resolve_prior_plan, round_steps, run_prior_training
+from gsgs_engine.pipeline import (PriorConfig, recovered_round_steps, resolve_prior_plan, round_steps,
+                                  run_prior_training)
+from gsgs_engine.train.schedule import Schedule
 from gsgs_engine.train.trainer import TrainConfig
 from test_trainer import make_scene
 
@@ -46,6 +48,15 @@ def test_round_steps_follow_the_warmup():
     assert round_steps(1000, 0.3, 3) == [300, 533, 766]
     assert round_steps(10, 0.5, 0) == []
     assert all(0 < s < 5 for s in round_steps(5, 0.3, 4))
+
+
+def test_rounds_never_follow_an_opacity_reset_closely():
+    sched = Schedule.scaled(1000)  # resets every 100 steps up to step 500
+    assert (sched.opacity_reset_every, sched.densify_until) == (100, 500)
+    assert recovered_round_steps(round_steps(1000, 0.3, 3), sched) == [375, 575, 766]
+    for s in recovered_round_steps(round_steps(300, 0.3, 2), Schedule.scaled(300)):
+        every = Schedule.scaled(300).opacity_reset_every
+        assert s % every >= (3 * every) // 4 or s > Schedule.scaled(300).densify_until + (3 * every) // 4 - 1
 
 
 def test_warp_prior_runs_rounds_and_adds_terms(tmp_path):
