@@ -375,6 +375,9 @@ def test_schedule_scales_with_iterations():
     assert (short.densify_from, short.densify_until, short.densify_every, short.opacity_reset_every,
             short.sh_degree_every) == (50, 1_500, 25, 300, 100)
     assert short.is_densify_step(75) and not short.is_densify_step(50) and not short.is_densify_step(1525)
+    assert [s for s in range(1, 30_001) if full.is_opacity_reset_step(s)] == [3000, 6000, 9000, 12000]  # as 3DGS
+    tiny = Schedule.scaled(200)  # reset period 75 > densify_until - 75: no reset the prune cannot recover from
+    assert not any(tiny.is_opacity_reset_step(s) for s in range(1, 201))
     assert math.isclose(position_lr(0, 100, 1.6e-4, 1.6e-6), 1.6e-4)
     assert math.isclose(position_lr(100, 100, 1.6e-4, 1.6e-6), 1.6e-6)
     assert math.isclose(position_lr(50, 100, 1.6e-4, 1.6e-6), 1.6e-5, rel_tol=1e-9)

@@ -57,7 +57,13 @@ class Schedule:
         return self.densify_from < step <= self.densify_until and step % self.densify_every == 0
 
     def is_opacity_reset_step(self, step: int) -> bool:
-        return step <= self.densify_until and step % self.opacity_reset_every == 0
+        """Reset only when a full reset period of densification follows (3DGS at 30k: 3000..12000).
+
+        With the floored densification interval of short runs, a reset just before the last
+        densification would let the opacity prune remove Gaussians that had no time to recover
+        (measured on LLFF flower, 200 steps: 3414 -> 230 Gaussians, test PSNR 4).
+        """
+        return step % self.opacity_reset_every == 0 and step <= self.densify_until - self.opacity_reset_every
 
     def is_sh_raise_step(self, step: int) -> bool:
         return step % self.sh_degree_every == 0
