@@ -143,11 +143,11 @@ def finished_run(scene_dir: Path, run_dir: Path, prior: str, iters: int) -> dict
     try:
         status = json.loads((run_dir / "status.json").read_text())
         metrics = json.loads((run_dir / "metrics.json").read_text())
-        newer = (run_dir / "metrics.json").stat().st_mtime > (scene_dir / "demo_dataset.json").stat().st_mtime
+        newer = (run_dir / "metrics.json").stat().st_mtime >= (scene_dir / "demo_dataset.json").stat().st_mtime
     except (OSError, ValueError):
         return None
     recorded = str((metrics.get("plan") or {}).get("prior", prior))  # "auto" runs record "auto:<generator>"
-    ok = (status.get("status") == "ok" and newer and metrics.get("iterations") == iters
+    ok = (status.get("state", status.get("status")) == "ok" and newer and metrics.get("iterations") == iters
           and recorded.split(":")[0] == prior and (run_dir / "point_cloud.ply").is_file())
     return metrics if ok else None
 

@@ -427,3 +427,19 @@ def test_demo_finds_the_default_prior_in_gsgs_train_help():
     rows = table.splitlines()
     assert rows[2] == "| baseline | none | 21.50 | 0.8123 | n/a | 1234 | 500 | 55 | 61 |"
     assert rows[3].endswith("| 3 (failed) |") and rows[1].count("---") == 9
+
+
+def test_demo_reuses_only_finished_matching_runs(tmp_path):
+    demo = _load_script("demo")
+    scene_dir, run = tmp_path / "scene", tmp_path / "prior_auto"
+    scene_dir.mkdir()
+    run.mkdir()
+    (scene_dir / "demo_dataset.json").write_text("{}")
+    (run / "point_cloud.ply").write_bytes(b"ply")
+    (run / "status.json").write_text(json.dumps({"state": "ok", "message": "done"}))
+    (run / "metrics.json").write_text(json.dumps({"iterations": 500, "plan": {"prior": "auto:warp-inpaint"}}))
+    assert demo.finished_run(scene_dir, run, "auto", 500) is not None
+    assert demo.finished_run(scene_dir, run, "auto", 300) is None  # other length
+    assert demo.finished_run(scene_dir, run, "none", 500) is None  # other prior
+    (run / "status.json").write_text(json.dumps({"state": "error", "message": "boom"}))
+    assert demo.finished_run(scene_dir, run, "auto", 500) is None
