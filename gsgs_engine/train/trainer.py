@@ -198,6 +198,7 @@ class Trainer:
         self.densify_log: list[dict] = []
         self._signal: int | None = None
         self.backend_used: str | None = None
+        self.opacity_resets = 0
 
         t0 = time.perf_counter()
         self.extent = self._extent()
@@ -365,11 +366,15 @@ class Trainer:
         if densifying:
             if sched.is_densify_step(step):
                 info = densify_and_prune(model, self.optimizer, self.stats, self.extent, cfg.densify_config,
-                                         prune_large=step > sched.opacity_reset_every, generator=self.torch_gen)
+                                         prune_large=self.opacity_resets > 0, generator=self.torch_gen)
                 info["step"] = step
                 self.densify_log.append(info)
             white = bool(torch.all(self.background == 1.0))
-            if sched.is_opacity_reset_step(step) or (white and step == sched.densify_from and step > 1):
+            if sched.is_opacity_reset_step(step):
+                reset_opacity(model, self.optimizer)
+                # 3DGS prunes by world size only after the first reset; a short run may have none
+                self.opacity_resets += 1
+            elif white and step == sched.densify_from and step > 1:
                 reset_opacity(model, self.optimizer)
         self.phase_seconds["densify"] += time.perf_counter() - t3
 
@@ -420,6 +425,7 @@ class Trainer:
                 "rng": {"numpy": self.np_rng.bit_generator.state, "torch_gen": self.torch_gen.get_state(),
                         "torch": torch.get_rng_state(), "order": list(self._order)},
                 "nan_steps_skipped": self.nan_steps_skipped, "train_seconds": self.train_seconds,
+                "opacity_resets": self.opacity_resets,
                 "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log}
 
     def save_checkpoint(self) -> Path | None:
@@ -456,6 +462,7 @@ class Trainer:
         torch.set_rng_state(state["rng"]["torch"])
         self._order = list(state["rng"]["order"])
         self.nan_steps_skipped = int(state["nan_steps_skipped"])
+        self.opacity_resets = int(state.get("opacity_resets", 0))
         self.train_seconds = float(state["train_seconds"])
         for k, v in state["phase_seconds"].items():
             self.phase_seconds[k] = self.phase_seconds.get(k, 0.0) + float(v) if k == "init" else float(v)
