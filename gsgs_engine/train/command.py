@@ -30,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(see gsgs_engine.pipeline)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale factor, e.g. 0.5")
-    parser.add_argument("--sh-degree", type=int, default=3, help="maximum SH degree 0..3 (default 3)")
+    parser.add_argument("--sh-degree", type=int, default=None,
+                        help="maximum SH degree 0..3 (default: the effect plan measures view dependence)")
     parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (0 = only on exit)")
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in OUT/checkpoints")
     parser.add_argument("--init", default="auto", choices=["auto", "sfm", "points", "random"],
@@ -43,9 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     bg.add_argument("--white-background", dest="background", action="store_const", const="white")
     bg.add_argument("--black-background", dest="background", action="store_const", const="black")
     parser.set_defaults(background="white")
+    from gsgs_engine.effect_plan import add_effects_argument
     from gsgs_engine.pipeline import add_prior_arguments
+    from gsgs_engine.presets import add_preset_argument
 
     add_prior_arguments(parser)
+    add_preset_argument(parser)
+    add_effects_argument(parser)
+    parser.set_defaults(_parser=parser)
 
 
 def _resume_command(args: argparse.Namespace) -> str:
@@ -59,16 +65,19 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine import GsgsError
     from gsgs_engine.io import load_scene
     from gsgs_engine.job import Job
-    from gsgs_engine.train.trainer import (TrainConfig, TrainingCancelled, TrainingInterrupted, train_and_export,
-                                           validate_config)
+    from gsgs_engine.train.trainer import TrainConfig, TrainingCancelled, TrainingInterrupted, validate_config
 
-    from gsgs_engine.pipeline import PRIOR_CHOICES, prior_config_from_args, run_prior_training
+    from gsgs_engine.effect_plan import overrides_from_args, train_with_effects
+    from gsgs_engine.pipeline import PRIOR_CHOICES, prior_config_from_args
+    from gsgs_engine.presets import apply_preset
 
+    preset_changed = apply_preset(args, getattr(args, "_parser", None)) if args.preset else {}
     if args.prior not in PRIOR_CHOICES:
         raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIOR_CHOICES)}")
     if args.resolution_scale <= 0:
         raise GsgsError(f"--resolution-scale must be positive (got {args.resolution_scale})")
-    config = TrainConfig(iters=args.iters, sh_degree=args.sh_degree, backend=args.backend, seed=args.seed,
+    config = TrainConfig(iters=args.iters, sh_degree=3 if args.sh_degree is None else args.sh_degree,
+                         backend=args.backend, seed=args.seed,
                          checkpoint_every=args.checkpoint_every, random_background=args.random_background,
                          init=args.init)
     if args.init_points is not None:
@@ -87,13 +96,13 @@ def run(args: argparse.Namespace) -> int:
                            train_views=args.train_views, train_ids=train_ids,
                            resolution_scale=args.resolution_scale, background=background)
         plan = {"data": str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
-                "resolution_scale": args.resolution_scale, "prior": args.prior}
-        if args.prior == "none":
-            metrics = train_and_export(scene, config, out, out / "checkpoints", job=job, resume=args.resume,
-                                       plan=plan)
-        else:
-            metrics = run_prior_training(scene, config, prior_config_from_args(args), out, out / "checkpoints",
-                                         job=job, resume=args.resume, plan=plan)
+                "resolution_scale": args.resolution_scale, "prior": args.prior, "preset": args.preset,
+                "preset_changed": preset_changed}
+        overrides = overrides_from_args(args)
+        if args.random_background:
+            overrides["background"] = "transparent"
+        metrics = train_with_effects(scene, config, prior_config_from_args(args), out, out / "checkpoints",
+                                     overrides=overrides, job=job, resume=args.resume, plan=plan)
     except TrainingInterrupted as exc:
         msg = (f"interrupted at step {exc.step}; checkpoint {exc.checkpoint}; resume with: {_resume_command(args)}")
         job.set_status("cancelled", msg)
