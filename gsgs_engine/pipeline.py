@@ -20,6 +20,7 @@ import torch
 from gsgs_engine import GsgsError
 
 PRIOR_CHOICES = ("none", "depth", "warp", "diffusion", "auto")
+MIN_DEPTH_COVERAGE = 0.10  # share of training-view pixels a depth source must cover to regularise
 
 
 @dataclass
@@ -229,6 +230,17 @@ class PriorLoop:
 
             self.estimator = load_depth_estimator(src, device="cpu")
         self.train_depth = [self.estimate(v.camera, trainer._targets[i]) for i, v in enumerate(trainer.train_views)]
+        coverage = float(np.mean([float(m.float().mean()) for _, m in self.train_depth]))
+        self.plan["depth_coverage"] = round(coverage, 4)
+        if coverage < MIN_DEPTH_COVERAGE:
+            # A depth map known on a few scattered pixels constrains nothing and adds noise
+            # (lego_200: 170 SfM points cover ~2% of each view).
+            self.plan["depth_source_disabled"] = (f"the {src} depth covers {coverage:.1%} of the training views "
+                                                  f"(< {MIN_DEPTH_COVERAGE:.0%})")
+            self.plan["depth_source"] = None
+            self.plan["lambda_reg"] = 0.0
+            self.train_depth = []
+            self.log(f"depth regulariser off: {self.plan['depth_source_disabled']}")
 
     def estimate(self, camera, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(relative inverse depth, valid mask) of an image at a camera from the configured source."""

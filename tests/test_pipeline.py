@@ -106,3 +106,16 @@ def test_diffusion_prior_end_to_end_with_tiny_models(tmp_path):
     assert rnd["lora"]["geo"] >= 0 and rnd["lora"]["ldm"] > 0
     assert (tmp_path / "out" / "pseudo" / "round_0" / "lora.safetensors").is_file()
     assert metrics["phase_seconds"]["prior_adapt"] > 0 and metrics["nan_steps_skipped"] == 0
+
+
+def test_depth_term_is_dropped_when_the_sparse_depth_covers_too_little(tmp_path):
+    scene = make_scene(n_train=3, n_test=1)
+    scene.points = scene.points[:2000:40]  # a handful of points: a few pixels of depth per view
+    scene.point_colors = scene.point_colors[:2000:40]
+    cfg = TrainConfig(iters=6, backend="reference", init="points", sh_degree=0, checkpoint_every=0)
+    cfg.min_init_points = 1
+    metrics = run_prior_training(scene, cfg, PriorConfig(prior="warp", num_pseudo=2, rounds=1, warmup_fraction=0.5),
+                                 tmp_path / "o", tmp_path / "c")
+    plan = metrics["plan"]["prior_plan"]
+    assert plan["depth_coverage"] < 0.10 and "covers" in plan["depth_source_disabled"]
+    assert "depth_reg" not in metrics["final_losses"] and "pseudo_l1" in metrics["final_losses"]
