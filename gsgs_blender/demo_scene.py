@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import bmesh
 import bpy
 
-from gsgs_blender.dataset_render import SphereRig, add_rig_cameras
+from .dataset_render import SphereRig, add_rig_cameras
 
 SCENE_VERSION = 2  # bump when the scene or rig changes: the demo re-renders datasets of another version
 TRAIN_VIEWS = 8

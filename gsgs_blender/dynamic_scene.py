@@ -20,9 +20,9 @@ from pathlib import Path
 import bpy
 import bmesh  # noqa: E402,I001  (importable only once bpy is)
 
-from gsgs_blender.dataset_render import (camera_intrinsics, camera_to_world, look_at,
-                                         openimagedenoise_available)
-from gsgs_blender.demo_scene import _material, _mesh_object
+from .dataset_render import (camera_intrinsics, camera_to_world, look_at,
+                             openimagedenoise_available)
+from .demo_scene import _material, _mesh_object
 
 RING_RADIUS = 4.2
 RING_HEIGHT = 1.9
