@@ -50,6 +50,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def best_run(runs: list[dict]) -> dict | None:
+    """The finished run with the highest test PSNR (a run without a PSNR ranks last)."""
+    ok = [r for r in runs if r.get("ok")]
+    if not ok:
+        return None
+    return max(ok, key=lambda r: (r.get("metrics") or {}).get("psnr") or float("-inf"))
+
+
 # -- (a) the dataset -----------------------------------------------------------------------------
 def render_demo_dataset(scene_dir: Path, resolution: int, samples: int, threads: int, force: bool) -> None:
     import bpy  # noqa: F401  (the pip `bpy` module; fails clearly below when absent)
@@ -220,9 +228,10 @@ def write_blend(out: Path, scene_dir: Path, runs: list[dict]) -> tuple[Path, str
             coll = bpy.data.collections.new("gsgs splats")
             demo.scene.collection.children.link(coll)
             names = []
-            for i, r in enumerate(plys):
+            best = best_run(plys)
+            for r in plys:
                 obj, secs = import_splats(r["ply"], collection=coll, name=f"splats_{r['run']}")
-                obj.hide_set(i != len(plys) - 1)  # show the last run (with the prior, when there is one)
+                obj.hide_set(r is not best)  # show the run with the highest test PSNR
                 names.append(obj.name)
             note = "cameras + splats " + ", ".join(names)
     path = out / "demo.blend"
@@ -265,10 +274,10 @@ def main(argv: list[str] | None = None) -> int:
         (out / "summary.json").write_text(json.dumps(
             [{k: v for k, v in r.items() if k != "metrics"} | {"metrics": {k: r.get("metrics", {}).get(k) for k in (
                 "psnr", "ssim", "lpips", "num_gaussians", "iterations", "train_seconds")}} for r in runs], indent=2))
-        final = next((r for r in reversed(runs) if r["ok"]), None)
+        final = best_run(runs)
         if final:
             shutil.copyfile(final["ply"], out / "point_cloud.ply")
-            log(f"(d) final splats ({final['run']}) -> {out / 'point_cloud.ply'}")
+            log(f"(d) best run's splats ({final['run']}, highest test PSNR) -> {out / 'point_cloud.ply'}")
 
     blend, note = write_blend(out, scene_dir, runs)
     log(f"(d) {blend}: {note}")

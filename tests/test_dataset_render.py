@@ -427,6 +427,10 @@ def test_demo_finds_the_default_prior_in_gsgs_train_help():
     rows = table.splitlines()
     assert rows[2] == "| baseline | none | 21.50 | 0.8123 | n/a | 1234 | 500 | 55 | 61 |"
     assert rows[3].endswith("| 3 (failed) |") and rows[1].count("---") == 9
+    # the demo's PLY and visible splats are the best run's, not simply the last one's
+    runs = [{"run": "baseline", "ok": True, "metrics": {"psnr": 21.3}},
+            {"run": "prior_auto", "ok": True, "metrics": {"psnr": 16.7}}, {"run": "x", "ok": False}]
+    assert demo.best_run(runs)["run"] == "baseline" and demo.best_run(runs[2:]) is None
 
 
 def test_demo_reuses_only_finished_matching_runs(tmp_path):
