@@ -135,7 +135,7 @@ for name in ("numpy", "torch", "pycolmap", "cv2", "diffusers"):
     except Exception as exc:
         info[name] = None
 try:
-    import torch
+    torch = __import__("torch")  # in the engine's interpreter, never in Blender's
     info["cuda"] = torch.cuda.is_available()
     info["cuda_device"] = torch.cuda.get_device_name(0) if info["cuda"] else None
 except Exception:
