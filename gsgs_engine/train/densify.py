@@ -112,6 +112,40 @@ def reset_opacity(model: GaussianModel, optimizer: torch.optim.Optimizer, ceilin
     _replace_param(model, optimizer, "opacity_logits", new, torch.zeros_like)
 
 
+def clone_and_split_rows(model, stats: "DensifyStats", extent: float, config: "DensifyConfig",
+                         generator: torch.Generator | None = None) -> tuple[dict, torch.Tensor, torch.Tensor]:
+    """New parameter rows for the Gaussians to densify, and the masks of the ones cloned and split.
+
+    Candidates have a mean screen-space gradient above the threshold (the strongest within the
+    Gaussian budget). Small ones are cloned; large ones are split into `split_factor` children
+    sampled inside the parent (scales / (0.8 k)). Every parameter row is copied, so models with
+    extra per-Gaussian parameters (4D) densify through the same function.
+    """
+    n = model.num_gaussians
+    grads = stats.average()
+    p = {k: v.detach() for k, v in model.params.items()}
+    scale_max = p["log_scales"].exp().max(dim=1).values
+    candidates = grads >= config.grad_threshold
+    budget = max(0, config.max_gaussians - n)
+    if int(candidates.sum()) > budget:  # keep the strongest gradients within the Gaussian budget
+        order = torch.argsort(grads, descending=True)
+        candidates = torch.zeros(n, dtype=torch.bool)
+        candidates[order[:budget]] = True
+        candidates &= grads >= config.grad_threshold
+    small = scale_max <= config.percent_dense * extent
+    clone_mask = candidates & small
+    split_mask = candidates & ~small
+    cloned = {k: v[clone_mask] for k, v in p.items()}
+    k = config.split_factor
+    idx = split_mask.nonzero(as_tuple=True)[0].repeat(k)
+    stds = p["log_scales"][idx].exp()
+    samples = torch.randn(stds.shape, generator=generator) * stds
+    split = {name: v[idx] for name, v in p.items()}
+    split["means"] = torch.bmm(quat_to_rotmat(p["quats"][idx]), samples[..., None])[..., 0] + p["means"][idx]
+    split["log_scales"] = p["log_scales"][idx] - torch.log(torch.tensor(0.8 * k))
+    return {name: torch.cat([cloned[name], split[name]], dim=0) for name in p}, clone_mask, split_mask
+
+
 def densify_and_prune(model: GaussianModel, optimizer: torch.optim.Optimizer, stats: DensifyStats,
                       extent: float, config: DensifyConfig, prune_large: bool,
                       generator: torch.Generator | None = None) -> dict:
@@ -120,33 +154,8 @@ def densify_and_prune(model: GaussianModel, optimizer: torch.optim.Optimizer, st
     Returns counts {"cloned", "split", "pruned", "num_gaussians"}.
     """
     n = model.num_gaussians
-    grads = stats.average()
     with torch.no_grad():
-        p = {k: v.detach() for k, v in model.params.items()}
-        scale_max = p["log_scales"].exp().max(dim=1).values
-        candidates = grads >= config.grad_threshold
-        budget = max(0, config.max_gaussians - n)
-        if int(candidates.sum()) > budget:  # keep the strongest gradients within the Gaussian budget
-            order = torch.argsort(grads, descending=True)
-            candidates = torch.zeros(n, dtype=torch.bool)
-            candidates[order[:budget]] = True
-            candidates &= grads >= config.grad_threshold
-        small = scale_max <= config.percent_dense * extent
-        clone_mask = candidates & small
-        split_mask = candidates & ~small
-
-        cloned = {k: v[clone_mask] for k, v in p.items()}
-
-        k = config.split_factor
-        idx = split_mask.nonzero(as_tuple=True)[0].repeat(k)
-        stds = p["log_scales"][idx].exp()
-        samples = torch.randn(stds.shape, generator=generator) * stds
-        rots = quat_to_rotmat(p["quats"][idx])
-        split = {k2: v[idx] for k2, v in p.items()}
-        split["means"] = torch.bmm(rots, samples[..., None])[..., 0] + p["means"][idx]
-        split["log_scales"] = p["log_scales"][idx] - torch.log(torch.tensor(0.8 * k))
-
-        new = {name: torch.cat([cloned[name], split[name]], dim=0) for name in PARAM_NAMES}
+        new, clone_mask, split_mask = clone_and_split_rows(model, stats, extent, config, generator)
     append_gaussians(model, optimizer, new)
 
     with torch.no_grad():

@@ -19,10 +19,11 @@ import numpy as np
 import torch
 
 from gsgs_engine import GsgsError
-from gsgs_engine.gaussians import GaussianModel, InitInfo, quat_to_rotmat, scene_bounds_from_cameras
+from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
 from gsgs_engine.spacetime import SpacetimeModel, render_at
 from gsgs_engine.train import checkpoint as ckpt
-from gsgs_engine.train.densify import DensifyConfig, DensifyStats, _replace_param, reset_opacity
+from gsgs_engine.train.densify import (DensifyConfig, DensifyStats, _replace_param, clone_and_split_rows,
+                                       reset_opacity)
 from gsgs_engine.train.trainer import TrainConfig, Trainer
 
 # Temporal learning rates (Adam), chosen for time in [0, 1]: a temporal centre can travel across a
@@ -122,27 +123,8 @@ def densify_and_prune_4d(model: SpacetimeModel, optimizer: torch.optim.Optimizer
     both children follow the parent's trajectory. Pruning uses the peak opacity within the clip.
     """
     n = model.num_gaussians
-    grads = stats.average()
     with torch.no_grad():
-        p = {k: v.detach() for k, v in model.params.items()}
-        scale_max = p["log_scales"].exp().max(dim=1).values
-        candidates = grads >= config.grad_threshold
-        budget = max(0, config.max_gaussians - n)
-        if int(candidates.sum()) > budget:
-            order = torch.argsort(grads, descending=True)
-            candidates = torch.zeros(n, dtype=torch.bool)
-            candidates[order[:budget]] = True
-            candidates &= grads >= config.grad_threshold
-        small = scale_max <= config.percent_dense * extent
-        clone_mask, split_mask = candidates & small, candidates & ~small
-        cloned = {k: v[clone_mask] for k, v in p.items()}
-        k = config.split_factor
-        idx = split_mask.nonzero(as_tuple=True)[0].repeat(k)
-        samples = torch.randn(idx.shape[0], 3, generator=generator) * p["log_scales"][idx].exp()
-        split = {name: v[idx] for name, v in p.items()}
-        split["means"] = torch.bmm(quat_to_rotmat(p["quats"][idx]), samples[..., None])[..., 0] + p["means"][idx]
-        split["log_scales"] = p["log_scales"][idx] - torch.log(torch.tensor(0.8 * k))
-        new = {name: torch.cat([cloned[name], split[name]], dim=0) for name in p}
+        new, clone_mask, split_mask = clone_and_split_rows(model, stats, extent, config, generator)
     _set_rows(model, optimizer, new, None)
     with torch.no_grad():
         n_new = new["means"].shape[0]
