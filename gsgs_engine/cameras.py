@@ -218,6 +218,22 @@ def interpolate_cameras(a: Camera, b: Camera, t: float, name: str = "") -> Camer
                    cy=lerp(a.cy, b.cy), name=name or f"{a.name}~{b.name}@{t:.3f}")
 
 
+def optical_axes_system(cameras) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations (A, b) of the point nearest to every optical axis: sum_i (I - d_i d_i^T)(x - c_i) = 0.
+
+    Solve A x = b when the axes cross at a real angle (A well conditioned); the smallest
+    eigenvalue of A says how well (0 for parallel axes).
+    """
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for cam in cameras:
+        d = cam.R[2]  # optical axis (camera +z) in world coordinates
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ cam.center
+    return A, b
+
+
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera (R, t) of an OpenCV camera at `eye` looking at `target`, `up` pointing up in the image."""
     eye = np.asarray(eye, dtype=np.float64)

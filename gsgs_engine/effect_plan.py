@@ -125,14 +125,11 @@ def focus_point(cameras) -> tuple[np.ndarray, str]:
     Forward-facing rigs (near-parallel axes) have no such point; there the focus is the mean
     centre pushed along the mean axis to the scene's typical depth (geometric mean of near/far).
     """
+    from gsgs_engine.cameras import optical_axes_system
+
     centers = np.stack([c.center for c in cameras])
     dirs = np.stack([c.R[2] for c in cameras])  # optical axis (camera +z) in world coordinates
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for c, d in zip(centers, dirs):
-        P = np.eye(3) - np.outer(d, d)
-        A += P
-        b += P @ c
+    A, b = optical_axes_system(cameras)
     eig = np.linalg.eigvalsh(A)
     if len(cameras) >= 2 and eig[0] > 0.05 * len(cameras):  # axes cross at a real angle
         return np.linalg.solve(A, b), "optical axes intersection"

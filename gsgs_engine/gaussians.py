@@ -197,14 +197,9 @@ def scene_bounds_from_cameras(cameras, near: float | None = None, far: float | N
     mean_dir /= max(np.linalg.norm(mean_dir), 1e-12)
     forward_facing = len(cameras) < 2 or float(np.min(dirs @ mean_dir)) > np.cos(np.radians(30))
     if not forward_facing:
-        # least-squares point nearest to all axes: sum_i (I - d_i d_i^T)(x - c_i) = 0
-        A = np.zeros((3, 3))
-        b = np.zeros(3)
-        for c, d in zip(centers, dirs):
-            P = np.eye(3) - np.outer(d, d)
-            A += P
-            b += P @ c
-        focus = np.linalg.solve(A, b)
+        from gsgs_engine.cameras import optical_axes_system
+
+        focus = np.linalg.solve(*optical_axes_system(cameras))
         half = max(float(np.median(np.linalg.norm(centers - focus, axis=1))), 1e-3) / 3.0
         return focus - half, focus + half
     lo_d = near if near is not None else max(spread, 1e-3)
