@@ -24,7 +24,7 @@ def register() -> None:
     global _registered
     import bpy
 
-    from . import operators, panels, preferences, pseudo_paths
+    from . import operators, panels, preferences, pseudo_paths, timeline
 
     preferences.register()
     classes = operators.all_classes() + panels.CLASSES
@@ -32,14 +32,16 @@ def register() -> None:
         bpy.utils.register_class(cls)
     _registered = classes
     pseudo_paths.register_drawing()
+    timeline.register_handler()
 
 
 def unregister() -> None:
     global _registered
     import bpy
 
-    from . import job_runner, preferences, pseudo_paths
+    from . import job_runner, preferences, pseudo_paths, timeline
 
+    timeline.unregister_handler()
     job_runner.stop_timer()
     pseudo_paths.unregister_drawing()
     for cls in reversed(_registered):

@@ -147,8 +147,11 @@ class GSGS_PT_result(_GsgsPanel, bpy.types.Panel):
         obj = s.result_object
         if obj is not None and "gsgs_count" in obj:
             layout.label(text=f"{obj['gsgs_count']:,} splats, SH degree {obj.get('gsgs_sh_degree', 0)}")
-            if "gsgs_temporal_fields" in obj:
-                layout.label(text="4D fields kept as attributes (playback: later)", icon="TIME")
+            if obj.get("gsgs_4d"):
+                layout.label(text=f"4D: plays on the timeline (frames {obj.get('gsgs_frame_start')}-"
+                                  f"{obj.get('gsgs_frame_end')})", icon="TIME")
+            elif "gsgs_temporal_fields" in obj:
+                layout.label(text="Time fields kept as attributes (not a gsgs 4D result: no playback)", icon="TIME")
         layout.prop(s, "max_display")
         layout.prop(s, "splat_size")
         metrics = _metrics(s.train_job)

@@ -4,6 +4,7 @@ Attributes (point domain): `opacity` (sigmoid of the logit), `scale` (exp of the
 scale, FLOAT_VECTOR), `rotation` (unit quaternion, QUATERNION), `color` (0.5 + C0 * SH DC,
 FLOAT_COLOR), `sh_dc` and `sh_rest_01..` (raw SH coefficients, FLOAT_VECTOR, one per
 coefficient) and every unknown PLY property (e.g. 4D motion fields) as a FLOAT attribute.
+A gsgs 4D PLY also keeps its rest values and plays on the timeline (timeline.py).
 Everything is written with foreach_set: no Python loop over points.
 """
 
@@ -19,7 +20,7 @@ from gsgs_engine import GsgsError
 SH_C0 = 0.28209479177387814  # Y_0^0, the constant SH basis function
 DEFAULT_MAX_DISPLAY = 200_000
 RESERVED = {"position", "opacity", "scale", "rotation", "color", "sh_dc", ".select_vert", "sharp_face"}
-# Substrings of per-point properties that 4D (spacetime) results add; kept, not yet played back.
+# Substrings of per-point properties that 4D (spacetime) results add; a full gsgs 4D set plays back.
 TEMPORAL_HINTS = ("time", "t_center", "t_scale", "trbf", "motion", "omega", "velocity")
 
 
@@ -63,7 +64,7 @@ def import_splats(path: str | Path, collection=None, name: str | None = None,
 
     from gsgs_engine.io.ply import read_gaussian_ply
 
-    from . import node_groups
+    from . import node_groups, timeline
 
     path = Path(path)
     if not path.is_file():
@@ -74,6 +75,9 @@ def import_splats(path: str | Path, collection=None, name: str | None = None,
     if n == 0:
         raise GsgsError(f"{path}: the PLY has no points; train longer or pick another file")
     arrays = splat_arrays(g)
+    is_4d = timeline.is_spacetime(g)
+    if is_4d:
+        arrays.update(timeline.rest_arrays(g))
 
     mesh = bpy.data.meshes.new(name or path.stem)
     mesh.vertices.add(n)
@@ -91,7 +95,12 @@ def import_splats(path: str | Path, collection=None, name: str | None = None,
     obj["gsgs_count"] = n
     temporal = temporal_fields(g)
     if temporal:
-        obj["gsgs_temporal_fields"] = temporal  # 4D playback is not implemented yet: data kept only
+        obj["gsgs_temporal_fields"] = temporal
+    if is_4d:
+        scene = bpy.context.scene
+        obj[timeline.IS_4D] = True
+        obj[timeline.FRAME_START], obj[timeline.FRAME_END] = scene.frame_start, scene.frame_end
+        timeline.update_object(obj, scene.frame_current_final)
     node_groups.add_splat_modifier(obj, display_ratio=display_ratio_for(n, max_display), size=size, detail=detail)
     return obj, time.perf_counter() - t0
 
