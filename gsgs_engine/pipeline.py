@@ -153,6 +153,17 @@ def _same_moment(photos, camera):
     return same or photos
 
 
+def orbit_focus(cameras) -> np.ndarray | None:
+    """The point orbiting cameras look at (their optical axes cross), else None (forward-facing:
+    pseudo centres then interpolate on straight lines, which stay between the cameras anyway)."""
+    from gsgs_engine.effect_plan import focus_point
+
+    if len(cameras) < 2:
+        return None
+    focus, how = focus_point(cameras)
+    return focus if how == "optical axes intersection" else None
+
+
 class PriorLoop:
     """Installs itself on a Trainer: pseudo views, rounds, and the depth-regulariser loss term."""
 
@@ -187,7 +198,8 @@ class PriorLoop:
             self.pseudo = spacetime_pseudo_views(trainer.train_views, per_time, jitter=self.cfg.jitter,
                                                  seed=trainer.config.seed)
         elif self.plan["generator"]:
-            self.pseudo = interpolated_pseudo_views(cams, self.cfg.num_pseudo, self.cfg.jitter, trainer.config.seed)
+            self.pseudo = interpolated_pseudo_views(cams, self.cfg.num_pseudo, self.cfg.jitter, trainer.config.seed,
+                                                    focus=orbit_focus(cams))
             self.pseudo += authored_pseudo_views(self.plan.get("authored_poses", []), cams)
         t0 = time.perf_counter()
         self._setup_depth_source(trainer)

@@ -362,3 +362,13 @@ def test_distortion_matches_pycolmap(model, params):
     xd, yd = distort_normalized(pc[:, 0], pc[:, 1], und.coeffs)
     ours = np.stack([und.source.fx * xd + und.source.cx, und.source.fy * yd + und.source.cy], axis=1)
     np.testing.assert_allclose(ours, ref.img_from_cam(pc), atol=1e-9)
+
+
+@pytest.mark.parametrize("u,v", [((0, 0, 1), (0, 1, 0)), ((1, 2, 3), (-3, 0.5, 1)), ((0, 0, 1), (0, 0, 1)),
+                                 ((0, 0, 1), (0, 0, -1)), ((1, 0, 0), (-1, 1e-14, 0))])
+def test_rotation_between_is_a_rotation_taking_u_to_v(u, v):
+    from gsgs_engine.cameras import rotation_between
+
+    Q = rotation_between(np.array(u, float), np.array(v, float))
+    assert np.allclose(Q @ Q.T, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(Q), 1.0)
+    assert np.allclose(Q @ (np.array(u) / np.linalg.norm(u)), np.array(v) / np.linalg.norm(v), atol=1e-9)

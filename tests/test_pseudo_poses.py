@@ -67,3 +67,30 @@ def test_authored_poses_keep_nearest_intrinsics_and_reject_bad_entries():
     bad = dict(d, t=[float("nan"), 0, 0])
     with pytest.raises(GsgsError, match="pseudo_poses\\[0\\]"):
         authored_pseudo_views([bad], train)
+
+
+def test_orbit_interpolation_keeps_pseudo_views_at_the_cameras_distance():
+    """Cameras on a circle around the origin, 90 degrees apart: the arc midpoint stays at radius 4
+    (a straight line would pass at 4 cos 45 = 2.83) and still looks at the focus."""
+    from gsgs_engine.cameras import Camera, look_at
+    from gsgs_engine.pipeline import orbit_focus
+    from gsgs_engine.priors.poses import interpolated_pseudo_views
+
+    cams = []
+    for k in range(4):
+        eye = 4.0 * np.array([np.cos(k * np.pi / 2), np.sin(k * np.pi / 2), 0.3])
+        R, t = look_at(eye, np.zeros(3))
+        cams.append(Camera(R=R, t=t, fx=50, fy=50, cx=32, cy=32, width=64, height=64, name=f"c{k}"))
+    focus = orbit_focus(cams)
+    assert focus is not None and np.allclose(focus, 0.0, atol=1e-6)
+    radius = np.linalg.norm(cams[0].center)
+    arc = interpolated_pseudo_views(cams, 4, focus=focus, neighbours=1)
+    line = interpolated_pseudo_views(cams, 4, neighbours=1)
+    for p in arc:
+        assert np.isclose(np.linalg.norm(p.camera.center), radius, rtol=1e-9)
+        assert np.degrees(np.arccos(np.clip(p.camera.R[2] @ (-p.camera.center / radius), -1, 1))) < 1e-3
+    assert all(np.linalg.norm(p.camera.center) < 0.8 * radius for p in line)
+    # forward-facing rigs have no crossing point: straight lines, as before
+    fwd = [Camera(R=np.eye(3), t=np.array([-x, 0.0, 0.0]), fx=50, fy=50, cx=32, cy=32, width=64, height=64)
+           for x in (0.0, 0.5, 1.0)]
+    assert orbit_focus(fwd) is None

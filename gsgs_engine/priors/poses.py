@@ -12,7 +12,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from gsgs_engine.cameras import Camera, interpolate_cameras, quat_to_rotmat, rotmat_to_quat
+from gsgs_engine.cameras import (Camera, interpolate_cameras, interpolate_cameras_around, quat_to_rotmat,
+                                 rotmat_to_quat)
 
 
 @dataclass(frozen=True)
@@ -65,8 +66,12 @@ def _jitter(camera: Camera, rng: np.random.Generator, position_sigma: float, ang
 
 
 def interpolated_pseudo_views(train: list[Camera], count: int, jitter: float = 0.0, seed: int = 0,
-                              neighbours: int = 2, time: float | None = None) -> list[PseudoView]:
+                              neighbours: int = 2, time: float | None = None,
+                              focus=None) -> list[PseudoView]:
     """`count` poses spread evenly over the edges between neighbouring training cameras.
+
+    With a `focus` (the point the cameras look at), centres travel on arcs around it rather
+    than on straight lines, so views between orbiting cameras stay at the cameras' distance.
 
     `jitter` is relative: positions move by jitter x the edge length (standard deviation) and
     orientations by jitter x 10 degrees.
@@ -81,7 +86,9 @@ def interpolated_pseudo_views(train: list[Camera], count: int, jitter: float = 0
     for (i, j), n in zip(edges, per_edge):
         for s in range(n):
             t = (s + 1) / (n + 1)
-            cam = interpolate_cameras(train[i], train[j], t, name=f"pseudo_{len(views):03d}")
+            name = f"pseudo_{len(views):03d}"
+            cam = (interpolate_cameras(train[i], train[j], t, name=name) if focus is None
+                   else interpolate_cameras_around(train[i], train[j], t, focus, name=name))
             if jitter > 0:
                 length = float(np.linalg.norm(train[i].center - train[j].center))
                 cam = _jitter(cam, rng, jitter * length, jitter * 10.0)
