@@ -33,7 +33,10 @@ def grid_cells(name: str) -> list[dict]:
     from gsgs_engine.bench_accuracy_cell import normalise_cell
     from gsgs_engine.presets import PRESETS
 
-    if name == "small":
+    if name == "prior":  # the prior ablation (issue #5's table): same iterations and seed, one run
+        cells = [{**BASE, "prior": "none"}, {**BASE, "prior": "depth"}, {**BASE, "prior": "warp", "depth_reg": False},
+                 {**BASE, "prior": "warp"}, {**BASE, "prior": "auto"}]
+    elif name == "small":
         cells = [{**BASE, "iters": it, "prior": prior} for prior in ("none", "auto") for it in (300, 1000)]
     elif name == "full":
         cells = [{**BASE, "iters": it, "prior": prior} for prior in ("none", "auto") for it in (300, 1000, 3000, 6000)]
@@ -47,7 +50,7 @@ def grid_cells(name: str) -> list[dict]:
     else:
         path = Path(name)
         if not path.is_file():
-            raise GsgsError(f"--grid {name!r}: use small, full or a JSON file with a list of cells")
+            raise GsgsError(f"--grid {name!r}: use small, full, prior or a JSON file with a list of cells")
         try:
             cells = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
@@ -75,7 +78,8 @@ def _has_cuda() -> bool:
 def cell_id(cell: dict) -> str:
     """A readable, unique name for a cell's settings."""
     return (f"it{cell['iters']}_rs{cell['resolution_scale']:g}_{cell['prior']}_pv{cell['pseudo_views']}"
-            f"_r{cell['rounds']}_sh{cell['sh_degree']}_{cell['backend']}")
+            f"_r{cell['rounds']}_sh{cell['sh_degree']}_{cell['backend']}"
+            + ("" if cell.get("depth_reg", True) else "_nodepth"))
 
 
 # -- running ----------------------------------------------------------------------------------------
@@ -215,6 +219,23 @@ def _fmt(v, spec: str) -> str:
     return "n/a" if v is None else format(v, spec)
 
 
+def prior_label(settings: dict) -> str:
+    return settings["prior"] + ("" if settings.get("depth_reg", True) else " (no depth term)")
+
+
+def versus_none(record: dict, rows: list[dict]) -> str:
+    """"+1.23 dB, 1.9x": this cell against the prior-free cell with the same schedule ("" for that cell)."""
+    s = record["settings"]
+    if s["prior"] == "none":
+        return ""
+    same = ("iters", "resolution_scale", "sh_degree", "backend")
+    base = [r for r in rows if r["settings"]["prior"] == "none" and all(r["settings"][k] == s[k] for k in same)]
+    if not base:
+        return "n/a"
+    b = base[-1]
+    return f"{record['psnr'] - b['psnr']:+.2f} dB, {record['seconds'] / max(b['seconds'], 1e-9):.1f}x"
+
+
 def markdown_table(records: list[dict], title: str) -> str:
     rows = sorted(latest_ok(records), key=lambda r: r["seconds"])
     front = set(pareto_front([(r["seconds"], r["psnr"]) for r in rows]))
@@ -222,19 +243,21 @@ def markdown_table(records: list[dict], title: str) -> str:
              "seconds: training wall time of the cell (plan, SfM, training, prior, export; not the evaluation). "
              "PSNR/SSIM/LPIPS: mean over the test views at full resolution. * = on the Pareto front "
              "(no other cell is both faster and better). preset: the cell a `--preset` runs.", "",
+             "vs none: PSNR difference and time ratio against the cell without a prior at the same iterations, "
+             "resolution, SH and backend.", "",
              "| | preset | cell | iters | res | prior | pseudo | rounds | SH | backend | seconds | PSNR | SSIM | LPIPS "
-             "| Gaussians | peak MB |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| Gaussians | peak MB | vs none |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for i, r in enumerate(rows):
         s = r["settings"]
         sh = s["sh_degree"]
         if sh == "auto" and r.get("effects"):
             sh = f"auto:{r['effects']['sh_degree']['value']}"
         lines.append(f"| {'*' if i in front else ''} | {preset_of(s)} | {r['id']} | {s['iters']} | "
-                     f"{s['resolution_scale']:g} | {s['prior']} | {s['pseudo_views']} | {s['rounds']} | {sh} | "
+                     f"{s['resolution_scale']:g} | {prior_label(s)} | {s['pseudo_views']} | {s['rounds']} | {sh} | "
                      f"{s['backend']} | "
                      f"{r['seconds']:.1f} | {r['psnr']:.2f} | {_fmt(r['ssim'], '.4f')} | {_fmt(r['lpips'], '.4f')} | "
-                     f"{r['num_gaussians']} | {_fmt(r.get('peak_memory_mb'), '.0f')} |")
+                     f"{r['num_gaussians']} | {_fmt(r.get('peak_memory_mb'), '.0f')} | {versus_none(r, rows)} |")
     failed = [r for r in records if r.get("status") != "ok"]
     if failed:
         lines += ["", "Failed runs:", ""] + [f"- {r['id']}: {r.get('error', '')}" for r in failed]
@@ -298,7 +321,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", help="scene folder (e.g. ../shared/data/lego_200)")
     parser.add_argument("--out", required=True, help="output folder: results.jsonl, cells/, table and plot")
     parser.add_argument("--grid", default="small", help="small (4 cells), full (one factor at a time around "
-                        "the base, about 20 cells) or a JSON file with a list of cells")
+                        "the base, about 20 cells), prior (the prior ablation: none, depth, warp without and with "
+                        "the depth term, auto) or a JSON file with a list of cells")
     parser.add_argument("--train-views", type=int, default=None, help="train on N views spread over the train split")
     parser.add_argument("--format", default="auto", choices=["auto", "blender", "llff", "colmap", "job"])
     parser.add_argument("--name", default=None, help="name in the output files (default: the data folder's name)")

@@ -15,9 +15,9 @@ import sys
 import time
 from pathlib import Path
 
-CELL_KEYS = ("iters", "resolution_scale", "pseudo_views", "rounds", "sh_degree", "prior", "backend")
+CELL_KEYS = ("iters", "resolution_scale", "pseudo_views", "rounds", "sh_degree", "prior", "backend", "depth_reg")
 DEFAULT_CELL = {"iters": 1000, "resolution_scale": 1.0, "pseudo_views": 8, "rounds": 2, "sh_degree": "auto",
-                "prior": "auto", "backend": "auto"}
+                "prior": "auto", "backend": "auto", "depth_reg": True}
 
 
 def normalise_cell(settings: dict) -> dict:
@@ -40,6 +40,10 @@ def normalise_cell(settings: dict) -> dict:
         raise GsgsError(f"accuracy grid cell {settings}: sh_degree must be auto or 0..3")
     if cell["backend"] not in ("auto", "reference", "cpu", "cuda"):
         raise GsgsError(f"accuracy grid cell {settings}: backend must be auto, reference, cpu or cuda")
+    if not isinstance(cell["depth_reg"], bool):
+        raise GsgsError(f"accuracy grid cell {settings}: depth_reg must be true or false")
+    if cell["prior"] == "none":
+        cell["depth_reg"] = True  # no prior, no depth term: one cell, not two
     cell["resolution_scale"] = float(cell["resolution_scale"])
     return cell
 
@@ -88,7 +92,8 @@ def run_cell(data: str, out: Path, cell: dict, train_views: int | None = None, f
     scene = load_scene(data, format=fmt, train_views=train_views, resolution_scale=cell["resolution_scale"])
     tc = TrainConfig(iters=cell["iters"], backend=cell["backend"], checkpoint_every=0)
     validate_config(tc)
-    pc = PriorConfig(prior=cell["prior"], num_pseudo=max(int(cell["pseudo_views"]), 1), rounds=int(cell["rounds"]))
+    pc = PriorConfig(prior=cell["prior"], num_pseudo=max(int(cell["pseudo_views"]), 1), rounds=int(cell["rounds"]),
+                     depth_reg=cell["depth_reg"])
     plan = {"data": str(data), "format": scene.format, "resolution_scale": cell["resolution_scale"],
             "bench_cell": cell}
     metrics = train_with_effects(scene, tc, pc, out, None, overrides=overrides_for(cell), plan=plan,

@@ -81,6 +81,22 @@ def test_cell_settings_are_checked_and_pinned_in_the_plan(tmp_path):
         ba.grid_cells(str(bad))
 
 
+def test_prior_grid_is_the_ablation_and_the_table_compares_with_none():
+    cells = ba.grid_cells("prior")
+    rows = [(c["prior"], c["depth_reg"]) for c in cells]
+    assert rows == [("none", True), ("depth", True), ("warp", False), ("warp", True), ("auto", True)]
+    assert len({ba.cell_id(c) for c in cells}) == 5 and ba.cell_id(cells[2]).endswith("_nodepth")
+    with pytest.raises(GsgsError, match="depth_reg"):
+        normalise_cell({"depth_reg": "no"})
+    records = [_fake_record(c) for c in cells]
+    records[2]["psnr"] = records[0]["psnr"] - 0.5
+    table = ba.markdown_table(records, "ablation")
+    assert "warp (no depth term)" in table
+    assert "| -0.50 dB, 2.0x |" in table and "| +1.00 dB, 2.0x |" in table
+    lone = _fake_record(normalise_cell({"prior": "auto", "iters": 300}))
+    assert ba.versus_none(lone, [lone]) == "n/a"
+
+
 # -- Pareto front ----------------------------------------------------------------------------------------
 def test_pareto_front():
     pts = [(10.0, 20.0), (20.0, 19.0), (30.0, 25.0), (5.0, 18.0), (30.0, 24.0), (40.0, 25.0)]
