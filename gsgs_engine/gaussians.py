@@ -112,6 +112,24 @@ class GaussianModel:
         k = num_sh_coeffs(degree)
         return torch.cat([self.params["sh_dc"], self.params["sh_rest"][:, :k - 1]], dim=1)
 
+    @property
+    def device(self) -> torch.device:
+        return self.params["means"].device
+
+    def to(self, device: torch.device | str) -> "GaussianModel":
+        """Move every parameter (temporal ones of a 4D model too) to `device`, in place; returns self.
+
+        Parameters already there are kept as they are. Moved ones are new leaf tensors, so make
+        the optimiser after moving.
+        """
+        device = torch.device(device)
+        if device.type == "cuda" and device.index is None:  # "cuda" means the current device: compare as cuda:k
+            device = torch.device("cuda", torch.cuda.current_device())
+        for name, value in self.params.items():
+            if value.device != device:
+                self.params[name] = value.detach().to(device).requires_grad_(True)
+        return self
+
     def raise_sh_degree(self) -> None:
         if self.active_sh_degree < self.max_sh_degree:
             self.active_sh_degree += 1

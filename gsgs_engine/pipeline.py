@@ -240,7 +240,7 @@ class PriorLoop:
         else:
             from gsgs_engine.priors.depth_estimators import load_depth_estimator
 
-            self.estimator = load_depth_estimator(src, device="cpu")
+            self.estimator = load_depth_estimator(src, device=str(trainer.device))
         self.train_depth = [self.estimate(v.camera, trainer._targets[i]) for i, v in enumerate(trainer.train_views)]
         coverage = float(np.mean([float(m.float().mean()) for _, m in self.train_depth]))
         self.plan["depth_coverage"] = round(coverage, 4)
@@ -255,11 +255,15 @@ class PriorLoop:
             self.log(f"depth regulariser off: {self.plan['depth_source_disabled']}")
 
     def estimate(self, camera, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(relative inverse depth, valid mask) of an image at a camera from the configured source."""
+        """(relative inverse depth, valid mask) of an image at a camera from the configured source,
+        on the trainer's device (the depth sources answer on the CPU)."""
         if self.sparse is not None:
-            return self.sparse.estimate(camera, image)
-        inv = self.estimator(image)
-        return inv, torch.isfinite(inv)
+            inv, mask = self.sparse.estimate(camera, image)
+        else:
+            inv = self.estimator(image)
+            mask = torch.isfinite(inv)
+        device = self.trainer.device
+        return inv.to(device), mask.to(device)
 
     # -- eq. 10 as a loss term ------------------------------------------------------------
     def depth_term(self, ctx):

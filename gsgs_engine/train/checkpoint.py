@@ -40,8 +40,24 @@ def latest_checkpoint(directory: Path) -> Path | None:
     return found[-1][1] if found else None
 
 
+def to_cpu(obj):
+    """`obj` with every tensor in its dicts, lists and tuples moved to the CPU (CPU tensors kept as they are)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu() if obj.device.type != "cpu" else obj
+    if isinstance(obj, dict):
+        return {k: to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(to_cpu(v) for v in obj)
+    return obj
+
+
 def save_checkpoint(directory: Path, step: int, state: dict, keep: int = KEEP) -> Path:
-    """Write `state` for `step`; a crash mid-write leaves the previous checkpoint intact."""
+    """Write `state` for `step`; a crash mid-write leaves the previous checkpoint intact.
+
+    Tensors are written as CPU tensors, so a checkpoint made on a GPU resumes on a CPU-only
+    machine (and the other way round: the trainer moves what it loads to its own device).
+    """
+    state = to_cpu(state)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     path = checkpoint_path(directory, step)

@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine import GsgsError
     from gsgs_engine.io import load_scene
     from gsgs_engine.job import Job
-    from gsgs_engine.train.trainer import TrainConfig, TrainingCancelled, TrainingInterrupted, validate_config
+    from gsgs_engine.train.trainer import (TrainConfig, TrainingCancelled, TrainingInterrupted, resolve_device,
+                                          validate_config)
 
     from gsgs_engine.effect_plan import overrides_from_args, train_with_effects
     from gsgs_engine.pipeline import PRIOR_CHOICES, prior_config_from_args
@@ -85,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
             raise GsgsError(f"--init-points must be at least 1 (got {args.init_points})")
         config.random_init_points = args.init_points
     validate_config(config)
+    resolve_device(config.backend)  # --backend cuda without CUDA / gsplat stops here, before any data is read
     out = Path(args.out)
     job = Job(root=out, spec={"task": "train"})  # a job-like folder; job.json is written only by Job.create
     out.mkdir(parents=True, exist_ok=True)

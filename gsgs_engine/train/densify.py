@@ -34,16 +34,16 @@ class DensifyConfig:
 class DensifyStats:
     """Accumulated screen-space gradient norms and maximum radii since the last densification."""
 
-    def __init__(self, n: int):
-        self.grad_accum = torch.zeros(n)
-        self.denom = torch.zeros(n)
-        self.max_radii = torch.zeros(n)
+    def __init__(self, n: int, device: torch.device | str | None = None):
+        self.grad_accum = torch.zeros(n, device=device)
+        self.denom = torch.zeros(n, device=device)
+        self.max_radii = torch.zeros(n, device=device)
 
     def accumulate(self, means2d_grad: torch.Tensor | None, radii: torch.Tensor, width: int, height: int) -> None:
         if means2d_grad is None:
             return
         visible = radii > 0
-        g = means2d_grad.detach()[visible, :2] * torch.tensor([width / 2.0, height / 2.0])
+        g = means2d_grad.detach()[visible, :2] * torch.tensor([width / 2.0, height / 2.0], device=means2d_grad.device)
         norms = g.norm(dim=-1)
         if not bool(torch.isfinite(norms).all()):
             return  # never let a bad gradient steer densification
@@ -56,15 +56,16 @@ class DensifyStats:
         return torch.nan_to_num(avg, nan=0.0, posinf=0.0, neginf=0.0)
 
     def reset(self, n: int) -> None:
-        self.__init__(n)
+        self.__init__(n, self.grad_accum.device)
 
     def state_dict(self) -> dict:
         return {"grad_accum": self.grad_accum.clone(), "denom": self.denom.clone(), "max_radii": self.max_radii.clone()}
 
     def load_state_dict(self, state: dict) -> None:
-        self.grad_accum = state["grad_accum"].clone()
-        self.denom = state["denom"].clone()
-        self.max_radii = state["max_radii"].clone()
+        device = self.grad_accum.device  # a checkpoint holds CPU tensors; the statistics stay on our device
+        self.grad_accum = state["grad_accum"].clone().to(device)
+        self.denom = state["denom"].clone().to(device)
+        self.max_radii = state["max_radii"].clone().to(device)
 
 
 # -- keeping Adam consistent --------------------------------------------------------------
@@ -108,7 +109,8 @@ def keep_gaussians(model: GaussianModel, optimizer: torch.optim.Optimizer, keep:
 def reset_opacity(model: GaussianModel, optimizer: torch.optim.Optimizer, ceiling: float = 0.01) -> None:
     """Clamp every opacity to at most `ceiling` and forget opacity's Adam moments (3DGS)."""
     cap = inverse_sigmoid(torch.tensor(ceiling)).item()
-    new = torch.minimum(model.params["opacity_logits"].detach(), torch.tensor(cap))
+    logits = model.params["opacity_logits"].detach()
+    new = torch.minimum(logits, torch.tensor(cap, device=logits.device))
     _replace_param(model, optimizer, "opacity_logits", new, torch.zeros_like)
 
 
@@ -122,14 +124,14 @@ def clone_and_split_rows(model, stats: "DensifyStats", extent: float, config: "D
     extra per-Gaussian parameters (4D) densify through the same function.
     """
     n = model.num_gaussians
-    grads = stats.average()
     p = {k: v.detach() for k, v in model.params.items()}
+    grads = stats.average().to(p["means"].device)  # statistics a caller kept elsewhere follow the model
     scale_max = p["log_scales"].exp().max(dim=1).values
     candidates = grads >= config.grad_threshold
     budget = max(0, config.max_gaussians - n)
     if int(candidates.sum()) > budget:  # keep the strongest gradients within the Gaussian budget
         order = torch.argsort(grads, descending=True)
-        candidates = torch.zeros(n, dtype=torch.bool)
+        candidates = torch.zeros(n, dtype=torch.bool, device=grads.device)
         candidates[order[:budget]] = True
         candidates &= grads >= config.grad_threshold
     small = scale_max <= config.percent_dense * extent
@@ -139,10 +141,11 @@ def clone_and_split_rows(model, stats: "DensifyStats", extent: float, config: "D
     k = config.split_factor
     idx = split_mask.nonzero(as_tuple=True)[0].repeat(k)
     stds = p["log_scales"][idx].exp()
-    samples = torch.randn(stds.shape, generator=generator) * stds
+    # sampled by the (CPU) generator, then moved: a CPU run draws exactly the numbers it always did
+    samples = torch.randn(stds.shape, generator=generator).to(stds.device) * stds
     split = {name: v[idx] for name, v in p.items()}
     split["means"] = torch.bmm(quat_to_rotmat(p["quats"][idx]), samples[..., None])[..., 0] + p["means"][idx]
-    split["log_scales"] = p["log_scales"][idx] - torch.log(torch.tensor(0.8 * k))
+    split["log_scales"] = p["log_scales"][idx] - torch.log(torch.tensor(0.8 * k, device=stds.device))
     return {name: torch.cat([cloned[name], split[name]], dim=0) for name in p}, clone_mask, split_mask
 
 
@@ -161,12 +164,12 @@ def densify_and_prune(model: GaussianModel, optimizer: torch.optim.Optimizer, st
     with torch.no_grad():
         n_new = new["means"].shape[0]
         total = n + n_new
-        prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool)])
+        prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool, device=split_mask.device)])
         prune |= model.opacities.detach() < config.min_opacity
         if prune_large:
             prune |= model.scales.detach().max(dim=1).values > config.max_world_size * extent
             if config.max_screen_size is not None:
-                radii = torch.cat([stats.max_radii, torch.zeros(n_new)])
+                radii = torch.cat([stats.max_radii, torch.zeros(n_new, device=stats.max_radii.device)])
                 prune |= radii > config.max_screen_size
         if bool(prune.all()):  # an empty model cannot recover: keep the most opaque one
             prune[torch.argmax(model.opacities.detach())] = False

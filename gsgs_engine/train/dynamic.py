@@ -128,7 +128,7 @@ def densify_and_prune_4d(model: SpacetimeModel, optimizer: torch.optim.Optimizer
     _set_rows(model, optimizer, new, None)
     with torch.no_grad():
         n_new = new["means"].shape[0]
-        prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool)])
+        prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool, device=split_mask.device)])
         prune |= peak_opacity_in_clip(model) < config.min_opacity
         if prune_large:
             prune |= model.scales.detach().max(dim=1).values > config.max_world_size * extent
@@ -177,7 +177,7 @@ class SpacetimeTrainer(Trainer):
             # Trainer._load rebuilds a 3D model from the checkpoint; the 4D one is in the same state dict.
             if self._pending_state is None:
                 raise GsgsError("internal: a 4D trainer got a 3D model")
-            self.model = SpacetimeModel.from_state_dict(self._pending_state["model"])
+            self.model = SpacetimeModel.from_state_dict(self._pending_state["model"]).to(self.device)
         opt = super()._make_optimizer()
         p = self.model.params
         for name, lr in (("t_center", T_CENTER_LR), ("t_log_scale", T_SCALE_LR),

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine.io.ply import read_gaussian_ply
     from gsgs_engine.job import write_json_atomic
     from gsgs_engine.train.evaluate import evaluate_views
-    from gsgs_engine.train.trainer import render_model
+    from gsgs_engine.train.trainer import render_model, resolve_device
 
     ply_path = _find_ply(Path(args.result))
     recorded = {}
@@ -66,8 +66,9 @@ def run(args: argparse.Namespace) -> int:
     views = scene.split(args.split)
     if not views:
         raise GsgsError(f"{args.data}: split {args.split!r} has no views to evaluate")
-    model = GaussianModel.from_ply(read_gaussian_ply(ply_path))
-    bg = torch.tensor(background, dtype=torch.float32)
+    device, _ = resolve_device(args.backend)  # the CUDA backend renders Gaussians that live on the GPU
+    model = GaussianModel.from_ply(read_gaussian_ply(ply_path)).to(device)
+    bg = torch.tensor(background, dtype=torch.float32, device=device)
     result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend), views,
                             renders_dir=Path(args.renders) if args.renders else None)
     result.update({"ply": str(ply_path), "data": str(args.data), "split": args.split, "backend": args.backend,

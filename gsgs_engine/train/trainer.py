@@ -115,6 +115,27 @@ class TrainingCancelled(Exception):
         super().__init__(f"cancelled at step {step}")
 
 
+def resolve_device(backend: str) -> tuple[torch.device, str]:
+    """(device the training tensors live on, its description for metrics.json's plan).
+
+    "cuda" for backend "cuda", or "auto" where CUDA and gsplat both work; otherwise the CPU.
+    An explicit "cuda" that cannot run stops here, before any data is loaded, saying what is
+    missing and how to fix it.
+    """
+    from gsgs_engine.render import api
+
+    if backend in ("cuda", "auto"):
+        ok, reason = api.cuda_status()
+        if ok:
+            device = torch.device("cuda", torch.cuda.current_device())
+            return device, f"{device} ({torch.cuda.get_device_name(device)})"
+        if backend == "cuda":
+            raise GsgsError(f"--backend cuda cannot run here: {reason}. Fix: run on a machine with an NVIDIA GPU, "
+                            "a CUDA build of torch and gsplat installed (pip install gsplat), or leave the backend "
+                            "to --backend auto (which uses the CPU here)")
+    return torch.device("cpu"), "cpu"
+
+
 def _as_image_tensor(img) -> torch.Tensor:
     t = torch.as_tensor(np.asarray(img, dtype=np.float32) if not torch.is_tensor(img) else img).float()
     if t.ndim != 3 or t.shape[2] != 3:
@@ -184,7 +205,9 @@ class Trainer:
         if not self.train_views:
             raise GsgsError(f"{scene.source}: no training views; check --train-split / --train-ids")
         self.schedule = Schedule.scaled(config.iters)
-        self.background = torch.as_tensor(np.asarray(scene.background, dtype=np.float32))
+        # Every training tensor (model, Adam state, targets, statistics) lives on this device.
+        self.device, self.device_description = resolve_device(config.backend)
+        self.background = torch.as_tensor(np.asarray(scene.background, dtype=np.float32)).to(self.device)
         self.loss_terms: dict[str, Callable[[StepContext], Any]] = {}
         self.callbacks: list[Callable[["Trainer", int], None]] = []
         self.pseudo_views: list[PseudoView] = []
@@ -225,9 +248,10 @@ class Trainer:
         targets, alphas = [], []
         for view in self.train_views:
             img = view.image()
-            targets.append(torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32)))
+            targets.append(torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32)).to(self.device))
             a = view.alpha() if (self.config.random_background and self.scene.has_alpha) else None
-            alphas.append(None if a is None else torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)))
+            alphas.append(None if a is None else
+                          torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).to(self.device))
         return targets, alphas
 
     def setup(self, resume: bool = False, initial_model: GaussianModel | None = None) -> None:
@@ -247,8 +271,9 @@ class Trainer:
                 self.model, self.init_info = initialise_gaussians(self.scene, self.train_views, self.config,
                                                                   self.torch_gen, self.log)
             self.log(f"init: {self.init_info.method}, {self.init_info.num_points} Gaussians ({self.init_info.reason})")
+            self.model.to(self.device)  # initialised on the CPU (seeded generator); moved before Adam sees it
             self.optimizer = self._make_optimizer()
-            self.stats = DensifyStats(self.model.num_gaussians)
+            self.stats = DensifyStats(self.model.num_gaussians, device=self.device)
         self.phase_seconds["init"] += time.perf_counter() - t0
 
     def _make_optimizer(self) -> torch.optim.Optimizer:
@@ -272,7 +297,7 @@ class Trainer:
             if (t.shape[1], t.shape[0]) != (pv.camera.width, pv.camera.height):
                 raise GsgsError(f"pseudo view {pv.name!r}: image is {t.shape[1]}x{t.shape[0]} but its camera is "
                                 f"{pv.camera.width}x{pv.camera.height}")
-            targets.append(t)
+            targets.append(t.to(self.device))
         self.pseudo_views = list(views)
         self._pseudo_targets = targets
 
@@ -289,7 +314,7 @@ class Trainer:
 
     def _step_background(self) -> torch.Tensor:
         if self.config.random_background and self.scene.has_alpha:
-            return torch.rand(3, generator=self.torch_gen)
+            return torch.rand(3, generator=self.torch_gen).to(self.device)  # drawn on the CPU: same colours anywhere
         return self.background
 
     def _target(self, i: int, background: torch.Tensor) -> torch.Tensor:
@@ -297,6 +322,7 @@ class Trainer:
         if alpha is None or background is self.background:
             return self._targets[i]
         # un-composite from the scene background and re-composite on this step's background
+        background = background.to(self.device)
         a = alpha[..., None]
         rgb_premul = self._targets[i] - self.background * (1 - a)
         return rgb_premul + background * (1 - a)
@@ -448,12 +474,18 @@ class Trainer:
         saved = TrainConfig.from_dict(state["config"])
         if saved.iters != self.config.iters:
             self.log(f"the checkpoint's schedule has {saved.iters} iterations; keeping it (asked: {self.config.iters})")
+        if saved.backend != self.config.backend:
+            # where to run is this run's choice (a GPU checkpoint may resume on a CPU machine and vice versa)
+            self.log(f"the checkpoint was trained with backend {saved.backend!r}; continuing with "
+                     f"{self.config.backend!r} on {self.device_description}")
+            saved.backend = self.config.backend
         self.config = saved
         self.schedule = Schedule.scaled(saved.iters)
-        self.model = GaussianModel.from_state_dict(state["model"])
+        # the checkpoint holds CPU tensors (loaded with map_location="cpu"); Adam's state follows its parameters
+        self.model = GaussianModel.from_state_dict(state["model"]).to(self.device)
         self.optimizer = self._make_optimizer()
         self.optimizer.load_state_dict(state["optimizer"])
-        self.stats = DensifyStats(self.model.num_gaussians)
+        self.stats = DensifyStats(self.model.num_gaussians, device=self.device)
         self.stats.load_state_dict(state["densify_stats"])
         self.init_info = InitInfo(**state["init"])
         self.step = int(state["step"])
@@ -530,7 +562,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     first = trainer.train_views[0].camera
     full_plan = {
         "backend": trainer.backend_used or trainer.config.backend, "backend_requested": trainer.config.backend,
-        "prior": "none", "sh_degree": trainer.config.sh_degree,
+        "device": trainer.device_description, "prior": "none", "sh_degree": trainer.config.sh_degree,
         "init": trainer.init_info.to_dict(), "background": [float(x) for x in trainer.background],
         "random_background": bool(trainer.config.random_background and scene.has_alpha),
         "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
@@ -603,6 +635,7 @@ def run_train_job(job) -> None:
     if not path.is_absolute():
         path = job.root / path
     config = config_from_settings(settings)
+    resolve_device(config.backend)  # backend "cuda" without CUDA / gsplat: stop before loading the data
     background = tuple(settings.get("background", data.get("background", (1.0, 1.0, 1.0))))
     scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
                        train_views=data.get("train_views"), train_ids=data.get("train_ids"),
