@@ -182,9 +182,9 @@ def test_prune_uses_peak_opacity_within_the_clip(clip):
     s = torch.sigmoid(torch.tensor(2.0))
     assert torch.allclose(peak, torch.stack([s, s * np.exp(-0.04), s * np.exp(-400.0)]))
     trainer = _trainer_with_model(clip, model)
-    info = densify_and_prune_4d(trainer.model, trainer.optimizer, DensifyStats(3), 1.0, DensifyConfig(),
-                                prune_large=False)
-    assert info["pruned"] == 1 and torch.allclose(trainer.model.t_center.detach(), torch.tensor([0.5, 1.2]))
+    info = densify_and_prune_4d(trainer.model, trainer.optimizer, DensifyStats(3, device=trainer.device), 1.0,
+                                DensifyConfig(), prune_large=False)
+    assert info["pruned"] == 1 and torch.allclose(trainer.model.t_center.detach().cpu(), torch.tensor([0.5, 1.2]))
 
 
 def test_training_steps_render_at_time_move_temporal_params_and_use_pseudo_times(clip):

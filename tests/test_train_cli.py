@@ -180,7 +180,8 @@ def test_gsgs_train_subprocess_end_to_end(tiny_scene, tmp_path):
 def test_sigterm_then_resume_finishes_the_same_schedule(tiny_scene, tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "gsgs_engine", "train", str(tiny_scene), "--out", str(out), "--iters", "80",
-           "--sh-degree", "0", "--checkpoint-every", "1000", "--init-points", "300"]
+           "--sh-degree", "0", "--checkpoint-every", "1000", "--init-points", "300",
+           "--backend", "reference"]  # slow enough to be stopped mid-run on any machine (a GPU finishes first)
     proc = subprocess.Popen(cmd, cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 300

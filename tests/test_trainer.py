@@ -258,7 +258,7 @@ def test_random_background_recomposites_the_target():
     scene.has_alpha = True
     trainer = make_trainer(scene, iters=2, random_background=True)
     bg = torch.tensor([0.0, 0.0, 1.0])
-    target = trainer._target(0, bg)
+    target = trainer._target(0, bg.to(trainer.device)).cpu()  # the trainer's device: cuda where gsplat works
     assert torch.allclose(target[0, 0], bg) and torch.allclose(target[16, 16], torch.tensor([1.0, 0.0, 0.0]))
 
 
@@ -393,3 +393,20 @@ def test_photometric_terms_weighting():
     assert math.isclose(float(terms["l1"][1]), 0.5)
     assert math.isclose(float(total_loss(terms)), 0.8 * 0.5 + 0.2 * float(terms["dssim"][1]), rel_tol=1e-6)
     assert float(total_loss(photometric_terms(b, b))) < 1e-6
+
+
+def test_size_extent_is_the_camera_extent_for_orbits_and_the_scene_depth_for_forward_rigs():
+    """The world-size prune's scale: an object inside a camera circle keeps the camera extent;
+    a forward-facing rig (small baseline, far points) gets the points' median distance."""
+    from gsgs_engine.train.trainer import size_extent
+
+    rng = np.random.default_rng(0)
+    angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    orbit = np.stack([4 * np.cos(angles), 4 * np.sin(angles), np.full(8, 1.0)], axis=1)
+    inside = rng.uniform(-1, 1, size=(500, 3))
+    assert size_extent(4.4, orbit, inside) == 4.4
+    rig = np.stack([np.linspace(-1, 1, 3), np.zeros(3), np.zeros(3)], axis=1)
+    far = np.concatenate([rng.uniform(-10, 10, size=(500, 2)), rng.uniform(40, 60, size=(500, 1))], axis=1)
+    got = size_extent(1.1, rig, far)
+    assert 40 < got < 62
+    assert size_extent(1.1, rig, np.full((3, 3), np.nan)) == 1.1  # no usable points: camera extent

@@ -151,8 +151,11 @@ def clone_and_split_rows(model, stats: "DensifyStats", extent: float, config: "D
 
 def densify_and_prune(model: GaussianModel, optimizer: torch.optim.Optimizer, stats: DensifyStats,
                       extent: float, config: DensifyConfig, prune_large: bool,
-                      generator: torch.Generator | None = None) -> dict:
+                      generator: torch.Generator | None = None, size_extent: float | None = None) -> dict:
     """Clone small and split large Gaussians with a high mean screen-space gradient, then prune.
+
+    `extent` scales the clone/split boundary; `size_extent` (default `extent`) the world-size
+    prune (see gsgs_engine.train.trainer.size_extent).
 
     Returns counts {"cloned", "split", "pruned", "num_gaussians"}.
     """
@@ -167,7 +170,7 @@ def densify_and_prune(model: GaussianModel, optimizer: torch.optim.Optimizer, st
         prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool, device=split_mask.device)])
         prune |= model.opacities.detach() < config.min_opacity
         if prune_large:
-            prune |= model.scales.detach().max(dim=1).values > config.max_world_size * extent
+            prune |= model.scales.detach().max(dim=1).values > config.max_world_size * (size_extent or extent)
             if config.max_screen_size is not None:
                 radii = torch.cat([stats.max_radii, torch.zeros(n_new, device=stats.max_radii.device)])
                 prune |= radii > config.max_screen_size

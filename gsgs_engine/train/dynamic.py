@@ -115,7 +115,7 @@ def _set_rows(model, optimizer, new: dict[str, torch.Tensor] | None, keep: torch
 
 def densify_and_prune_4d(model: SpacetimeModel, optimizer: torch.optim.Optimizer, stats: DensifyStats,
                          extent: float, config: DensifyConfig, prune_large: bool,
-                         generator: torch.Generator | None = None) -> dict:
+                         generator: torch.Generator | None = None, size_extent: float | None = None) -> dict:
     """3DGS clone / split on the mean screen-space gradient, carrying the temporal parameters along.
 
     Clones copy every parameter. Splits sample new centres inside the parent's 3D Gaussian (at its
@@ -131,7 +131,7 @@ def densify_and_prune_4d(model: SpacetimeModel, optimizer: torch.optim.Optimizer
         prune = torch.cat([split_mask, torch.zeros(n_new, dtype=torch.bool, device=split_mask.device)])
         prune |= peak_opacity_in_clip(model) < config.min_opacity
         if prune_large:
-            prune |= model.scales.detach().max(dim=1).values > config.max_world_size * extent
+            prune |= model.scales.detach().max(dim=1).values > config.max_world_size * (size_extent or extent)
         if bool(prune.all()):
             prune[torch.argmax(model.opacities.detach())] = False
     _set_rows(model, optimizer, None, ~prune)
@@ -224,7 +224,8 @@ class SpacetimeTrainer(Trainer):
                                   cam.width, cam.height)
         if sched.is_densify_step(step):
             info = densify_and_prune_4d(self.model, self.optimizer, self.stats, self.extent, cfg.densify_config,
-                                        prune_large=step > sched.opacity_reset_every, generator=self.torch_gen)
+                                        prune_large=step > sched.opacity_reset_every, generator=self.torch_gen,
+                                        size_extent=self.size_extent)
             info["step"] = step
             self.densify_log.append(info)
         white = bool(torch.all(self.background == 1.0))
