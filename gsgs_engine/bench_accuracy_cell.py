@@ -67,9 +67,12 @@ def _full_resolution_eval(data: str, fmt: str, train_views, ply_path: Path, back
     from gsgs_engine.render import render
     from gsgs_engine.train.evaluate import evaluate_views
 
+    from gsgs_engine.train.trainer import resolve_device
+
     scene = load_scene(data, format=fmt, train_views=train_views)
-    model = GaussianModel.from_ply(read_gaussian_ply(ply_path))
-    bg = torch.as_tensor(scene.background, dtype=torch.float32)
+    device, _ = resolve_device(backend)  # the backend renders where the Gaussians live (gsplat: CUDA)
+    model = GaussianModel.from_ply(read_gaussian_ply(ply_path)).to(device)
+    bg = torch.as_tensor(scene.background, dtype=torch.float32, device=device)
     deg = model.max_sh_degree
 
     def render_fn(cam):

@@ -52,7 +52,7 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
     for i, view in enumerate(views):
         gt = torch.from_numpy(np.ascontiguousarray(view.image(), dtype=np.float32))
         with torch.no_grad():
-            img = render_fn(view.camera).color.detach().clamp(0.0, 1.0)
+            img = render_fn(view.camera).color.detach().clamp(0.0, 1.0).cpu()  # the model may live on a GPU
             entry = {"name": view.name, "psnr": float(psnr(img, gt)), "ssim": float(ssim(img, gt))}
             lp, reason = _lpips(img, gt)
         if lp is None:
