@@ -258,7 +258,8 @@ def markdown_table(records: list[dict], title: str) -> str:
                      f"{s['backend']} | "
                      f"{r['seconds']:.1f} | {r['psnr']:.2f} | {_fmt(r['ssim'], '.4f')} | {_fmt(r['lpips'], '.4f')} | "
                      f"{r['num_gaussians']} | {_fmt(r.get('peak_memory_mb'), '.0f')} | {versus_none(r, rows)} |")
-    failed = [r for r in records if r.get("status") != "ok"]
+    ok_ids = {r["id"] for r in rows}
+    failed = [r for r in records if r.get("status") != "ok" and r.get("id") not in ok_ids]  # not re-run since
     if failed:
         lines += ["", "Failed runs:", ""] + [f"- {r['id']}: {r.get('error', '')}" for r in failed]
     if rows and all(r["lpips"] is None for r in rows):
