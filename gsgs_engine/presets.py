@@ -3,14 +3,17 @@
 Each preset is a bench cell (the same keys as gsgs_engine.bench_accuracy_cell), so the full
 grid (`gsgs bench accuracy DATA --grid full`) measures exactly what a preset runs.
 
-Measured so far (docs/accuracy_lego_200.md: lego_200, 8 views, the 2-core shared dev machine
-under load average ~12, backend auto = compiled CPU rasteriser, commit 548cc05):
-  fast      365 s, PSNR 18.26, SSIM 0.743, 1543 Gaussians, 387 MB peak (the plan chose SH 0)
-  balanced  not measured yet (the full grid has not run here)
-  best      not measured yet
-The one prior cell measured (300 iterations, prior auto) scored PSNR 9.88 in 1109 s, far off
-the front (its first round fell right after an opacity reset; see docs/accuracy.md), so
-balanced and best must be re-checked against the full grid before they are trusted.
+Chosen from the measured fronts (docs/accuracy_*.md, 2026-11-22):
+  - lego_200, 8 views, H100 + gsplat (docs/accuracy_lego_200_h100.md): 300 it 17.79 dB / 11 s,
+    1000 it 22.30 / 15 s, 3000 it 24.21 / 42 s are the front; 6000 it is slower and worse
+    (23.62 / 91 s: the sparse views overfit), SH 3 and half resolution are off the front.
+  - llff_flower, 3 views, H100: 300 it 16.41 / 14 s, 3000 it 16.59 / 46 s, 6000 it 16.87 / 92 s.
+  - lego_200, 2-core CPU (docs/accuracy_lego_200.md): 1000 it without a prior 22.84 dB in 130 s;
+    with the weights-free prior (warp-inpaint; the SfM depth term switches itself off on lego)
+    22.02 dB in 213 s: the prior is off the front, so no preset turns it on. `--prior auto`
+    stays one flag away, and presets will include it once a measured run puts it on the front
+    (diffusion weights, a depth estimator).
+So: fast = 300 iterations, balanced = 1000 (the default), best = 3000; SH from the effect plan.
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,
@@ -27,11 +30,11 @@ PRESETS: dict[str, dict] = {
     # plain 3DGS, short schedule: the first look (SH from the plan: its SfM is needed for init anyway)
     "fast": {"iters": 300, "resolution_scale": 1.0, "prior": "none", "pseudo_views": 0, "rounds": 0,
              "sh_degree": "auto", "backend": "auto"},
-    # the prior where the scene needs it (effect plan), a moderate schedule
-    "balanced": {"iters": 1000, "resolution_scale": 1.0, "prior": "auto", "pseudo_views": 8, "rounds": 2,
+    # the default schedule: the knee of both measured fronts
+    "balanced": {"iters": 1000, "resolution_scale": 1.0, "prior": "none", "pseudo_views": 0, "rounds": 0,
                  "sh_degree": "auto", "backend": "auto"},
-    # the paper's schedule length with more pseudo views and rounds
-    "best": {"iters": 3000, "resolution_scale": 1.0, "prior": "auto", "pseudo_views": 16, "rounds": 3,
+    # the best measured on lego (3000 beat 6000 there: sparse views overfit longer runs)
+    "best": {"iters": 3000, "resolution_scale": 1.0, "prior": "none", "pseudo_views": 0, "rounds": 0,
              "sh_degree": "auto", "backend": "auto"},
 }
 PRESET_NAMES = tuple(PRESETS)

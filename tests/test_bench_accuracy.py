@@ -226,11 +226,17 @@ def test_apply_preset_fills_defaults_and_keeps_typed_flags():
     parser.add_argument("--resolution-scale", type=float, default=1.0)
     add_prior_arguments(parser)
     add_preset_argument(parser)
+    from gsgs_engine.presets import PRESETS
+
+    defaults = vars(parser.parse_args([]))
     args = parser.parse_args(["--preset", "balanced", "--iters", "500"])
     changed = apply_preset(args, parser)
-    assert args.iters == 500 and args.prior == "auto" and args.pseudo_views == 8 and args.rounds == 2
-    assert changed == {"prior": "auto", "pseudo_views": 8, "rounds": 2}
-    assert args.effects_overrides == {}
+    b = PRESETS["balanced"]
+    assert args.iters == 500 and args.prior == b["prior"] and args.rounds == b["rounds"]  # typed --iters wins
+    expected = {dest: b[key] for key, dest in (("prior", "prior"), ("pseudo_views", "pseudo_views"), ("rounds", "rounds"))
+                if defaults[dest] != b[key]}
+    assert changed == expected
+    assert args.effects_overrides == ({"pseudo_views": "off"} if b["prior"] == "none" else {})
     args = parser.parse_args(["--preset", "fast"])
     apply_preset(args, parser)
     assert (args.iters, args.prior, args.sh_degree) == (300, "none", 3)  # SH: the plan decides
@@ -240,6 +246,9 @@ def test_apply_preset_fills_defaults_and_keeps_typed_flags():
     assert (args.iters, args.prior, args.sh_degree) == (300, "auto", 1)  # typed flags win
     assert apply_preset(parser.parse_args([]), parser) == {}
     tc, pc, eff, scale = apply_preset((TrainConfig(), PriorConfig()), name="best")
-    assert (tc.iters, pc.prior, pc.num_pseudo, pc.rounds, eff, scale) == (3000, "auto", 16, 3, {}, 1.0)
+    x = PRESETS["best"]
+    assert (tc.iters, pc.prior, pc.rounds, scale) == (x["iters"], x["prior"], x["rounds"], x["resolution_scale"])
+    assert pc.num_pseudo == max(x["pseudo_views"], 1)
+    assert eff == ({"pseudo_views": "off"} if x["prior"] == "none" else {})
     with pytest.raises(GsgsError, match="choose one of"):
         apply_preset((TrainConfig(), PriorConfig()), name="ultra")
