@@ -7,7 +7,7 @@ from pathlib import Path
 import bpy
 
 from gsgs_engine import GsgsError
-from gsgs_engine.job import Job
+from gsgs_engine.job import Job, settings_with_preset
 
 from . import camera_convert, pseudo_paths
 from .operators import job_run, launch, new_job_dir, report_error, scene_callback, stored_path
@@ -47,19 +47,27 @@ def _image_size(path: str) -> tuple[int, int] | None:
     return (int(w), int(h)) if w and h else None
 
 
+def job_settings(context) -> dict:
+    """job.json settings from the Train fields; a chosen preset is recorded and fills what has no field."""
+    s = context.scene.gsgs
+    settings = {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
+                **prior_settings(get_prefs(context), s.generator, s.rounds)}
+    if s.preset != "custom":
+        settings["preset"] = s.preset
+    return settings_with_preset(settings)
+
+
 def train_spec(context) -> dict:
     """Job.create keyword arguments of the scene's training job (data, settings, pseudo poses)."""
     scene = context.scene
     s = scene.gsgs
-    prefs = get_prefs(context)
     data = {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]}
     points = sparse_points_file(scene)
     if points:
         data["points"] = points  # the solve's sparse points (xyz + rgb PLY), to initialise the splats
     return {
         "data": data,
-        "settings": {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
-                     **prior_settings(prefs, s.generator, s.rounds)},
+        "settings": job_settings(context),
         "pseudo_poses": pseudo_paths.poses_from_json(s.pseudo_poses),
         "blender": {"file": bpy.data.filepath, "scene": scene.name},
     }
@@ -150,8 +158,7 @@ class GSGS_OT_validate(bpy.types.Operator):
         try:
             job = Job.create(new_job_dir(context, "validate"), "validate",
                              data={"path": str(source), "format": "auto", "train_views": int(s.validate_views)},
-                             settings={"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
-                                       **prior_settings(get_prefs(context), s.generator, s.rounds)})
+                             settings=job_settings(context))
             s.validate_job = stored_path(job.root)
             run = launch(context, job)
         except GsgsError as exc:

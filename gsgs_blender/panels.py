@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import bpy
+from gsgs_engine import presets
 
 from . import job_runner, pseudo_paths
 from .operators import job_run
@@ -123,6 +124,11 @@ class GSGS_PT_train(_GsgsPanel, bpy.types.Panel):
     def draw(self, context):
         s = context.scene.gsgs
         layout = self.layout
+        layout.prop(s, "preset")
+        if s.preset != "custom":
+            p = presets.PRESETS[s.preset]
+            layout.label(text=f"{p['pseudo_views']} pseudo views, SH {p['sh_degree']}, backend {p['backend']}",
+                         icon="PRESET")
         col = layout.column(align=True)
         col.prop(s, "iterations")
         col.prop(s, "rounds")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import tempfile
 from pathlib import Path
@@ -15,6 +16,8 @@ from pathlib import Path
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
+
+from gsgs_engine import presets
 
 # The checkout this add-on runs from, when it is one (gsgs_blender/ next to gsgs_engine/).
 _CHECKOUT = Path(__file__).resolve().parents[1]
@@ -204,6 +207,69 @@ GENERATORS = [("auto", "Auto", "diffusion when the model folders are set, else t
               ("none", "None (plain 3DGS)", "train on the photos alone: the sparse-view baseline")]
 
 
+def _preset_cost(name: str) -> str:
+    """A preset's measured cost as gsgs_engine.presets' docstring states it (read at runtime, never copied):
+    a line `  NAME  cost...`, else each bullet's `ITERS it ...` figures with the bullet's data set."""
+    doc = presets.__doc__ or ""
+    for line in doc.splitlines():
+        words = line.split(None, 1)
+        if line.startswith("  ") and len(words) == 2 and words[0] == name:
+            return words[1].strip()
+    found = []
+    for bullet in re.split(r"\n\s+- ", doc)[1:]:
+        bullet = " ".join(bullet.split())
+        label = re.sub(r"\s*\(.*?\)", "", bullet.split(":")[0])
+        figures = [f.strip() for f in re.findall(rf"\b{presets.PRESETS[name]['iters']} it\b[^,;()]*?\d s\b", bullet)]
+        if figures:
+            found.append(f"{label}: {', '.join(figures)}")
+    return "; ".join(found) or "not measured yet (docs/accuracy_*.md)"
+
+
+def _preset_item(name: str) -> tuple[str, str, str]:
+    p = presets.PRESETS[name]
+    text = (f"{p['iters']} iterations, resolution {p['resolution_scale']}, prior {p['prior']}, "
+            f"{p['pseudo_views']} pseudo views, {p['rounds']} rounds, SH {p['sh_degree']}, backend {p['backend']}. "
+            f"Measured: {_preset_cost(name)}")
+    return (name, name.title(), text)
+
+
+# `gsgs train --preset`: the values come from the engine's table (torch-free), so the two never disagree.
+PRESETS = [("custom", "Custom", "Keep the training fields below as you set them")] + [
+    _preset_item(name) for name in presets.PRESET_NAMES]
+# panel field -> preset key; pseudo views, SH degree and backend have no field: the job's "preset" sets them
+PRESET_FIELDS = {"iterations": "iters", "resolution_scale": "resolution_scale", "generator": "prior",
+                 "rounds": "rounds"}
+_applying_preset = False
+
+
+def preset_matches(settings, name: str) -> bool:
+    p = presets.PRESETS[name]
+    return all(abs(getattr(settings, f) - p[k]) < 1e-6 if f == "resolution_scale" else getattr(settings, f) == p[k]
+               for f, k in PRESET_FIELDS.items())
+
+
+def _apply_preset(self, context) -> None:
+    """Choosing a preset sets the training fields to its values; Custom leaves them alone."""
+    global _applying_preset
+    if self.preset == "custom":
+        return
+    p = presets.PRESETS[self.preset]
+    _applying_preset = True
+    try:
+        for field_name, key in PRESET_FIELDS.items():
+            setattr(self, field_name, p[key])
+    finally:
+        _applying_preset = False
+
+
+def _training_field_edited(self, context) -> None:
+    """Editing a training field away from the preset's value makes the preset Custom again."""
+    if _applying_preset or self.preset == "custom":
+        return
+    if not preset_matches(self, self.preset):
+        self.preset = "custom"
+
+
 def _update_display(self, context) -> None:
     """Push the display settings into the result object's geometry-nodes modifier."""
     obj = self.result_object
@@ -235,13 +301,17 @@ class GSGS_SceneSettings(bpy.types.PropertyGroup):
     pseudo_poses: StringProperty(name="Pseudo Poses", default="[]",
                                  description="Sampled pseudo poses as JSON (Camera.to_dict list)")
     show_frusta: BoolProperty(name="Show Frusta", default=True, description="Draw the pseudo cameras in the viewport")
-    iterations: IntProperty(name="Iterations", default=10000, min=1, max=1_000_000,
+    preset: EnumProperty(name="Preset", items=PRESETS, default="custom", update=_apply_preset,
+                         description="Settings from the measured accuracy/time front (`gsgs train --preset`); "
+                                     "editing a field below makes it Custom")
+    iterations: IntProperty(name="Iterations", default=10000, min=1, max=1_000_000, update=_training_field_edited,
                             description="Gaussian-splat optimisation steps in all (the paper uses 10,000)")
-    rounds: IntProperty(name="Rounds", default=3, min=0, max=20,
+    rounds: IntProperty(name="Rounds", default=3, min=0, max=20, update=_training_field_edited,
                         description="Hallucination rounds: regenerate pseudo views this many times")
     resolution_scale: FloatProperty(name="Resolution", default=1.0, min=0.05, max=1.0, subtype="FACTOR",
+                                    update=_training_field_edited,
                                     description="Train on images downscaled by this factor")
-    generator: EnumProperty(name="Generator", items=GENERATORS, default="auto")
+    generator: EnumProperty(name="Generator", items=GENERATORS, default="auto", update=_training_field_edited)
     train_job: StringProperty(name="Train Job", subtype="DIR_PATH", description="Job folder of the training run")
     result_object: PointerProperty(name="Result", type=bpy.types.Object, description="Imported splat object")
     max_display: IntProperty(name="Viewport Splats", default=200_000, min=0, update=_update_display,

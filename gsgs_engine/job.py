@@ -150,6 +150,33 @@ class Job:
         self.cancel_path.touch()
 
 
+def settings_with_preset(settings: dict) -> dict:
+    """job.json settings with settings["preset"] (fast | balanced | best) filled in.
+
+    Keys the job sets explicitly win, as typed flags do for `gsgs train --preset`; the others
+    take the preset's value (gsgs_engine.presets.PRESETS): iters, resolution_scale, backend,
+    sh_degree (unless "auto"), prior, and prior_settings num_pseudo / rounds. The result reads
+    into the same TrainConfig / PriorConfig as presets.apply_preset gives. Idempotent; a copy.
+    """
+    out = dict(settings)
+    name = out.get("preset")
+    if name in (None, "", "custom"):
+        out.pop("preset", None)
+        return out
+    from gsgs_engine.presets import preset  # standard library only, like this module
+
+    p = preset(name)
+    for key in ("iters", "resolution_scale", "backend", "prior"):
+        out.setdefault(key, p[key])
+    if p["sh_degree"] != "auto":
+        out.setdefault("sh_degree", int(p["sh_degree"]))
+    prior_settings = dict(out.get("prior_settings") or {})
+    prior_settings.setdefault("num_pseudo", max(int(p["pseudo_views"]), 1))
+    prior_settings.setdefault("rounds", int(p["rounds"]))
+    out["prior_settings"] = prior_settings
+    return out
+
+
 def read_status(root: str | os.PathLike) -> dict | None:
     path = Path(root) / "status.json"
     try:

@@ -467,7 +467,12 @@ def prior_config_from_args(args) -> PriorConfig:
 
 
 def prior_config_from_settings(settings: dict) -> PriorConfig:
-    """job.json settings -> PriorConfig (keys named as PriorConfig's fields; unknown keys refused)."""
+    """job.json settings -> PriorConfig (keys named as PriorConfig's fields; unknown keys refused).
+
+    A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
+    from gsgs_engine.job import settings_with_preset
+
+    settings = settings_with_preset(settings)
     known = set(PriorConfig.__dataclass_fields__)
     d = {k: v for k, v in (settings.get("prior_settings") or {}).items()}
     unknown = sorted(set(d) - known)

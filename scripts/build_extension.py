@@ -29,7 +29,7 @@ import zipfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-ENGINE_FILES = ["gsgs_engine/__init__.py", "gsgs_engine/cameras.py", "gsgs_engine/job.py"]
+ENGINE_FILES = ["gsgs_engine/__init__.py", "gsgs_engine/cameras.py", "gsgs_engine/job.py", "gsgs_engine/presets.py"]
 ENGINE_PACKAGES = ["gsgs_engine/io"]  # every module here is standard library + numpy at import time
 WHEEL_DIST = "gsgs_engine_core"
 FIXED_TIME = (2024, 1, 1, 0, 0, 0)

@@ -16,7 +16,7 @@ ADDON = REPO / "gsgs_blender"
 BLENDER_ONLY = {"bpy", "bmesh", "mathutils", "bpy_extras"}
 HEAVY = {"torch", "pycolmap", "diffusers", "cv2"}
 # the layer the add-on imports: its module-level imports may be the stdlib, numpy and itself
-LIGHT_ROOTS = ["gsgs_engine", "gsgs_engine.io", "gsgs_engine.job", "gsgs_engine.cameras"]
+LIGHT_ROOTS = ["gsgs_engine", "gsgs_engine.io", "gsgs_engine.job", "gsgs_engine.cameras", "gsgs_engine.presets"]
 
 
 def python_files(root: Path) -> list[Path]:
@@ -82,7 +82,8 @@ def top(name: str) -> str:
 
 
 def test_light_layer_does_not_load_heavy_modules():
-    code = ("import gsgs_engine.io, gsgs_engine.job, gsgs_engine.cameras, gsgs_engine.io.ply, gsgs_engine.io.exr; "
+    code = ("import gsgs_engine.io, gsgs_engine.job, gsgs_engine.cameras, gsgs_engine.io.ply, gsgs_engine.io.exr, "
+            "gsgs_engine.presets; "
             "import sys; print('torch' in sys.modules, 'cv2' in sys.modules, 'pycolmap' in sys.modules)")
     env = dict(os.environ, PYTHONPATH=str(REPO))
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, timeout=120)

@@ -619,10 +619,15 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
 
 
 def config_from_settings(settings: dict) -> TrainConfig:
-    """Job settings (job.json "settings") -> TrainConfig; unknown keys are rejected by name."""
+    """Job settings (job.json "settings") -> TrainConfig; unknown keys are rejected by name.
+
+    A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
+    from gsgs_engine.job import settings_with_preset
+
+    settings = settings_with_preset(settings)
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
-               "resolution_scale", "background"}
+               "resolution_scale", "background", "preset"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
@@ -657,7 +662,9 @@ def run_train_job(job) -> None:
     from gsgs_engine.io import load_scene
 
     data = job.spec.get("data") or {}
-    settings = dict(job.spec.get("settings") or {})
+    from gsgs_engine.job import settings_with_preset
+
+    settings = settings_with_preset(job.spec.get("settings") or {})  # a "preset" fills what the job leaves out
     if "path" not in data:
         raise GsgsError(f"{job.spec_path}: data.path is missing; name the scene folder to train on")
     path = Path(data["path"])
