@@ -493,7 +493,8 @@ def _views_key(views) -> tuple:
 
 
 def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_dir, overrides: dict | None = None,
-                       job=None, resume: bool = False, plan: dict | None = None, stream=None, log=print) -> dict:
+                       job=None, resume: bool = False, plan: dict | None = None, stream=None, log=print,
+                       authored_poses: list | None = None) -> dict:
     """Plan the effects, print the plan, train what it enables; metrics.json["plan"]["effects"] holds it."""
     from gsgs_engine.pipeline import run_prior_training
 
@@ -504,7 +505,7 @@ def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_di
     merged = {**(plan or {}), "effects": effect_plan.to_dict()}
     with shared_triangulation(effect_plan, scene.train):
         metrics = run_prior_training(scene, tc, pc, out_dir, checkpoint_dir, job=job, resume=resume, plan=merged,
-                                     stream=stream)
+                                     stream=stream, authored_poses=authored_poses)
     metrics.setdefault("phase_seconds", {})["plan"] = round(effect_plan.seconds, 3)
     from gsgs_engine.job import write_json_atomic
 
@@ -516,6 +517,20 @@ def add_effects_argument(parser) -> None:
     parser.add_argument("--effects", default=None, metavar="NAME=VALUE,...",
                         help="override the effect plan: time=on|off, sh_degree=auto|0..3, background=transparent|"
                              "fixed, depth=on|off, pseudo_views=auto|off|N, generator=auto|warp-inpaint|diffusion")
+
+
+def overrides_from_settings(settings: dict) -> dict:
+    """Effect overrides of a job's settings (job.json): an explicit sh_degree, random_background -> a
+    transparent background, then "effects" (a dict or the command line's NAME=VALUE,... text)."""
+    out: dict = {}
+    if settings.get("sh_degree") not in (None, "auto"):
+        out["sh_degree"] = int(settings["sh_degree"])
+    if settings.get("random_background"):
+        out["background"] = "transparent"
+    effects = settings.get("effects")
+    out.update(parse_overrides(effects) if isinstance(effects, str) or effects is None else dict(effects))
+    check_overrides(out)
+    return out
 
 
 def overrides_from_args(args) -> dict:

@@ -150,6 +150,23 @@ def test_run_train_job_trains_cancels_and_resumes(tiny_scene, tmp_path):
     assert run_job(argparse.Namespace(job_dir=str(job.root))) == 0
     assert job.status()["state"] == "ok"
     _check_result(job.result_dir, 8)
+    # a job goes through the same effect plan as `gsgs train`; its explicit settings override the plan
+    effects = json.loads((job.result_dir / "metrics.json").read_text())["plan"]["effects"]
+    assert effects["sh_degree"]["value"] == 0 and effects["sh_degree"]["source"] == "user"
+    assert "effect plan" in job.log_path.read_text().lower()
+
+
+def test_job_settings_become_effect_overrides():
+    from gsgs_engine import GsgsError
+    from gsgs_engine.effect_plan import overrides_from_settings
+
+    assert overrides_from_settings({"iters": 5}) == {}
+    assert overrides_from_settings({"sh_degree": "auto"}) == {}
+    assert overrides_from_settings({"sh_degree": 1, "random_background": True, "effects": "pseudo_views=off"}) == \
+        {"sh_degree": 1, "background": "transparent", "pseudo_views": "off"}
+    assert overrides_from_settings({"effects": {"depth": "off"}}) == {"depth": "off"}
+    with pytest.raises(GsgsError):
+        overrides_from_settings({"effects": "colour=7"})
 
 
 def test_job_settings_are_checked(tmp_path):

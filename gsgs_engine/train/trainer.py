@@ -627,7 +627,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
     settings = settings_with_preset(settings)
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
-               "resolution_scale", "background", "preset"}
+               "resolution_scale", "background", "preset", "effects"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
@@ -680,16 +680,15 @@ def run_train_job(job) -> None:
     plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
             "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
             "job": str(job.root)}
-    prior = settings.get("prior", "none") or "none"
-    try:
-        if prior == "none":
-            train_and_export(scene, config, job.result_dir, job.checkpoint_dir, job=job, resume=resume, plan=plan)
-        else:
-            from gsgs_engine.pipeline import prior_config_from_settings, run_prior_training
+    from gsgs_engine.effect_plan import overrides_from_settings, train_with_effects
+    from gsgs_engine.pipeline import prior_config_from_settings
 
-            run_prior_training(scene, config, prior_config_from_settings(settings), job.result_dir,
-                               job.checkpoint_dir, job=job, resume=resume, plan=plan,
-                               authored_poses=job.spec.get("pseudo_poses"))
+    try:
+        # the same effect plan as `gsgs train` (SH degree, background, pseudo views, depth, time), printed
+        # to the job log and saved in metrics.json; the job's explicit settings override it
+        train_with_effects(scene, config, prior_config_from_settings(settings), job.result_dir, job.checkpoint_dir,
+                           overrides=overrides_from_settings(settings), job=job, resume=resume, plan=plan,
+                           log=lambda m: _append_log(job.log_path, m), authored_poses=job.spec.get("pseudo_poses"))
     except TrainingCancelled as exc:
         job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
                                     "run the job again to resume")
