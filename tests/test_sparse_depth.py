@@ -35,3 +35,17 @@ def test_a_slanted_plane_is_densified_close_to_its_inverse_depth():
 def test_no_points_gives_an_empty_mask_not_nan():
     inv, valid = SparseDepthSource(np.zeros((0, 3))).estimate(_camera(), np.zeros((30, 40, 3), np.float32))
     assert not valid.any() and torch.isfinite(inv).all()
+
+
+def test_a_point_density_below_one_percent_still_supports_the_pixels_between_points():
+    """LLFF-like density (1 point in ~140 pixels): the image is covered, not rejected."""
+    cam = _camera(w=200, h=150)
+    rng = np.random.default_rng(1)
+    uv = rng.uniform([0, 0], [200, 150], size=(210, 2))
+    z = np.full(len(uv), 4.0)
+    pts = np.stack([(uv[:, 0] - 100) / 30 * z, (uv[:, 1] - 75) / 30 * z, z], axis=1)
+    inv, valid = SparseDepthSource(pts).estimate(cam, np.full((150, 200, 3), 0.5, np.float32))
+    assert valid.float().mean() > 0.8
+    assert np.allclose(inv.numpy()[valid.numpy()], 0.25, rtol=0.02)
+    lone = SparseDepthSource(pts[:1]).estimate(cam, np.full((150, 200, 3), 0.5, np.float32))[1]
+    assert 0 < lone.float().mean() < 0.05  # one point supports only its own neighbourhood

@@ -30,8 +30,14 @@ def project_sparse_depth(camera: Camera, points: np.ndarray) -> np.ndarray:
 
 
 def densify_inverse_depth(image: np.ndarray, sparse_depth: np.ndarray, radius: int | None = None,
-                          eps: float = 1e-3, min_support: float = 0.02) -> tuple[torch.Tensor, torch.Tensor]:
-    """Guided normalised convolution of the sparse inverse depth; returns (inverse depth, valid mask)."""
+                          eps: float = 1e-3, min_points: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Guided normalised convolution of the sparse inverse depth; returns (inverse depth, valid mask).
+
+    A pixel is valid where about `min_points` SfM point supports it: the filtered mask is the
+    local fraction of pixels holding a point, times the (2 radius + 1)^2 window. (A fixed
+    fraction, as before, rejected every pixel of LLFF flower: 1310 points over 190k pixels
+    are 0.7% of them, yet ~28 points fall in each 63 x 63 window.)
+    """
     import cv2
 
     h, w = sparse_depth.shape
@@ -41,7 +47,7 @@ def densify_inverse_depth(image: np.ndarray, sparse_depth: np.ndarray, radius: i
     guide = np.ascontiguousarray(image[..., :3], dtype=np.float32)
     num = cv2.ximgproc.guidedFilter(guide, inv * mask, radius, eps)
     den = cv2.ximgproc.guidedFilter(guide, mask, radius, eps)
-    valid = den > min_support
+    valid = (den * (2 * radius + 1) ** 2 >= min_points) & (den > 1e-4)
     dense = np.where(valid, num / np.maximum(den, 1e-6), 0.0)
     return torch.from_numpy(dense.astype(np.float32)), torch.from_numpy(valid)
 
