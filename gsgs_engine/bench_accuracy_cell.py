@@ -97,6 +97,8 @@ def run_cell(data: str, out: Path, cell: dict, train_views: int | None = None, f
     validate_config(tc)
     pc = PriorConfig(prior=cell["prior"], num_pseudo=max(int(cell["pseudo_views"]), 1), rounds=int(cell["rounds"]),
                      depth_reg=cell["depth_reg"])
+    if cell["prior"] == "warp" and cell["depth_reg"]:
+        pc.depth_source = "sparse"  # the ablation row "warp-inpaint + depth": the depth term, whatever auto would do
     plan = {"data": str(data), "format": scene.format, "resolution_scale": cell["resolution_scale"],
             "bench_cell": cell}
     metrics = train_with_effects(scene, tc, pc, out, None, overrides=overrides_for(cell), plan=plan,

@@ -121,8 +121,12 @@ def test_rgba_vs_rgb_background():
 def test_with_and_without_a_depth_source(tmp_path):
     scene = make_scene()
     scene.points = None
-    with_points = plan(scene, tri=fake_triangulation(200))
+    with_points = plan(scene, replace(AUTO, depth_source="sparse"), tri=fake_triangulation(200))
     assert with_points["depth"].value == "sparse" and with_points["depth"].measured["sfm_points"] == 200
+    unasked = plan(scene, tri=fake_triangulation(200))  # auto: SfM-point depth measured to hurt, so off
+    assert unasked["depth"].enabled is False and "measured" in unasked["depth"].reason
+    assert plan(scene, overrides={"depth": "on"}, tri=fake_triangulation(200))["depth"].value == "sparse"
+    assert plan(scene, replace(AUTO, prior="depth"), tri=fake_triangulation(200))["depth"].value == "sparse"
     few = plan(scene, tri=fake_triangulation(10))
     assert few["depth"].enabled is False and "10 SfM points" in few["depth"].reason
     (tmp_path / "dpt").mkdir()
@@ -287,7 +291,7 @@ def test_disabled_effects_are_never_called(tmp_path, monkeypatch):
 def test_enabled_effects_are_called(tmp_path, monkeypatch):
     calls, degrees = _install_counters(monkeypatch)
     scene = make_scene(n_train=4)  # sparse: pseudo views with the warp-inpaint generator, sparse depth
-    p, metrics = _train(scene, tmp_path, {"sh_degree": 1})
+    p, metrics = _train(scene, tmp_path, {"sh_degree": 1, "depth": "on"})
     assert p["generator"].value == "warp-inpaint" and p["depth"].value == "sparse"
     assert calls["generator"] == 2 and calls["pseudo_poses"] == 1 and calls["depth_source"] >= 4 + 2
     assert "triangulate" not in calls  # the plan's points are shared, not recomputed
