@@ -10,7 +10,8 @@ Chosen from the measured fronts (docs/accuracy_*.md, 2026-11-22):
   - llff_flower, 3 views, H100: 300 it 16.41 / 14 s, 3000 it 16.59 / 46 s, 6000 it 16.87 / 92 s.
   - lego_200, 2-core CPU (docs/accuracy_lego_200.md): 1000 it without a prior 22.84 dB in 130 s;
     with the weights-free prior (warp-inpaint; the SfM depth term switches itself off on lego)
-    22.02 dB in 213 s: the prior is off the front, so no preset turns it on. `--prior auto`
+    22.02 dB in 200 s: the prior is off the front (on llff_flower it is just on it: +0.19 dB for
+    1.6x the time), so no preset turns it on. `--prior auto`
     stays one flag away, and presets will include it once a measured run puts it on the front
     (diffusion weights, a depth estimator).
 So: fast = 300 iterations, balanced = 1000 (the default), best = 3000; SH from the effect plan.
