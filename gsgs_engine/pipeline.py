@@ -245,8 +245,7 @@ class PriorLoop:
         coverage = float(np.mean([float(m.float().mean()) for _, m in self.train_depth]))
         self.plan["depth_coverage"] = round(coverage, 4)
         if coverage < MIN_DEPTH_COVERAGE:
-            # A depth map known on a few scattered pixels constrains nothing and adds noise
-            # (lego_200: 170 SfM points cover ~2% of each view).
+            # A depth map known on a few scattered pixels constrains nothing and adds noise.
             self.plan["depth_source_disabled"] = (f"the {src} depth covers {coverage:.1%} of the training views "
                                                   f"(< {MIN_DEPTH_COVERAGE:.0%})")
             self.plan["depth_source"] = None

@@ -62,7 +62,7 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
         entry["lpips"] = lp
         per_view.append(entry)
         if renders_dir is not None and i < max_renders:
-            write_png(Path(renders_dir) / f"{i:03d}_{_safe_name(view.name)}.png", img.cpu().numpy())
+            write_png(Path(renders_dir) / f"{i:03d}_{_safe_name(view.name)}.png", img.numpy())
     result = {
         "psnr": float(np.mean([v["psnr"] for v in per_view])) if per_view else None,
         "ssim": float(np.mean([v["ssim"] for v in per_view])) if per_view else None,
