@@ -58,11 +58,15 @@ def _gaussian_window_1d(size: int, sigma: float, dtype: torch.dtype, device: tor
 
 
 def ssim(img, gt, window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
-    """Mean structural similarity, as 3DGS's utils/loss_utils.ssim computes it.
+    """Mean structural similarity, as 3DGS's utils/loss_utils.ssim computes it (the mean of `ssim_map`)."""
+    return ssim_map(img, gt, window_size, sigma).mean()
+
+
+def ssim_map(img, gt, window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
+    """Per-pixel structural similarity (B, C, H, W), as 3DGS's utils/loss_utils.ssim computes it.
 
     Gaussian window 11 x 11, sigma 1.5, zero padding of window // 2 (so any image size, even
-    1 x 1, works and the map has the image's size), C1 = 0.01^2, C2 = 0.03^2, mean over the
-    map. The 2D window is separable, so two 1D passes give the same sums at a fraction of
+    1 x 1, works and the map has the image's size), C1 = 0.01^2, C2 = 0.03^2. The 2D window is separable, so two 1D passes give the same sums at a fraction of
     the cost; the five local moments go through one grouped convolution.
     """
     x, y = _as_bchw(img, gt)
@@ -76,9 +80,8 @@ def ssim(img, gt, window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> 
     mu1, mu2, e11, e22, e12 = blurred.split(channels, dim=1)
     mu1_sq, mu2_sq, mu12 = mu1 * mu1, mu2 * mu2, mu1 * mu2
     sigma1_sq, sigma2_sq, sigma12 = e11 - mu1_sq, e22 - mu2_sq, e12 - mu12
-    ssim_map = ((2 * mu12 + SSIM_C1) * (2 * sigma12 + SSIM_C2)) / (
+    return ((2 * mu12 + SSIM_C1) * (2 * sigma12 + SSIM_C2)) / (
         (mu1_sq + mu2_sq + SSIM_C1) * (sigma1_sq + sigma2_sq + SSIM_C2))
-    return ssim_map.mean()
 
 
 def lpips_or_none(img, gt, weights_dir: str | os.PathLike | None = None, net: str = "alex") -> tuple[float | None, str]:

@@ -35,6 +35,7 @@ class PriorConfig:
     depth_reg: bool = True
     geo_loss: bool = True
     jitter: float = 0.0
+    reach: float = 1.5  # forward-facing rigs: a ring of pseudo views at reach x the rig's radius (0 = none)
     diffusion_model: str | None = None
     depth_adapter: str | None = None
     diffusion: dict = field(default_factory=dict)  # DiffusionSettings overrides (steps, strength, ...)
@@ -184,7 +185,8 @@ class PriorLoop:
 
     # -- set-up -----------------------------------------------------------------------
     def install(self, trainer) -> None:
-        from gsgs_engine.priors.poses import authored_pseudo_views, interpolated_pseudo_views
+        from gsgs_engine.priors.poses import (authored_pseudo_views, interpolated_pseudo_views,
+                                              surrounding_pseudo_views)
 
         self.trainer = trainer
         cams = [v.camera for v in trainer.train_views]
@@ -198,9 +200,18 @@ class PriorLoop:
             self.pseudo = spacetime_pseudo_views(trainer.train_views, per_time, jitter=self.cfg.jitter,
                                                  seed=trainer.config.seed)
         elif self.plan["generator"]:
-            self.pseudo = interpolated_pseudo_views(cams, self.cfg.num_pseudo, self.cfg.jitter, trainer.config.seed,
-                                                    focus=orbit_focus(cams))
+            focus = orbit_focus(cams)
+            # forward-facing rigs: half the views on a ring past the rig's edges (orbits see all round already)
+            ring = self.cfg.num_pseudo // 2 if (focus is None and self.cfg.reach > 0) else 0
+            self.pseudo = interpolated_pseudo_views(cams, self.cfg.num_pseudo - ring, self.cfg.jitter,
+                                                    trainer.config.seed, focus=focus)
+            self.pseudo += surrounding_pseudo_views(cams, ring, self.cfg.reach, first_index=len(self.pseudo))
             self.pseudo += authored_pseudo_views(self.plan.get("authored_poses", []), cams)
+        # Scenes without a real background (photos): what a pseudo view shows empty is unseen content,
+        # to be filled (inpainted, and new Gaussians placed there); with one (RGBA), empty is background.
+        # (4D models carry per-Gaussian motion that seeding does not set up: static scenes only.)
+        self.fill_empty = not trainer.scene.has_alpha and not trainer.scene.has_time
+        self.plan["fill_empty"] = self.fill_empty
         t0 = time.perf_counter()
         self._setup_depth_source(trainer)
         if self.plan["generator"] == "diffusion":
@@ -316,9 +327,12 @@ class PriorLoop:
         t2 = time.perf_counter()
         if self.plan.get("depth_source"):
             self.pseudo_depth = [self.estimate(p.camera, img) for p, img in zip(self.pseudo, images)]
-        # A pseudo view the model barely covers carries no surface to supervise: leave it out this round.
+        # A pseudo view the model barely covers carries no surface to supervise: leave it out this round
+        # (right after an opacity reset, say); unless empty is unseen content, which the round fills.
         train_cover = float(np.median([float((ph.depth > 0).float().mean()) for ph in photos]))
-        keep = [float((out.alpha > 0.5).float().mean()) >= 0.5 * train_cover for out in renders]
+        keep = [self.fill_empty or float((out.alpha > 0.5).float().mean()) >= 0.5 * train_cover for out in renders]
+        if self.fill_empty and self.plan["generator"] == "warp-inpaint":
+            stats["gaussians_added_in_empty"] = self._fill_empty_with_gaussians(renders, images)
         stats["pseudo_views_used"] = int(sum(keep))
         stats["pseudo_views_skipped_low_coverage"] = len(keep) - int(sum(keep))
         self.active = [j for j, k in enumerate(keep) if k]
@@ -337,12 +351,53 @@ class PriorLoop:
 
         images, cover = [], []
         for p, out in zip(self.pseudo, renders):
-            img, s = warp_inpaint(p.camera, out.color, out.depth, out.alpha, _same_moment(photos, p.camera))
+            img, s = warp_inpaint(p.camera, out.color, out.depth, out.alpha, _same_moment(photos, p.camera),
+                                  fill_empty=self.fill_empty)
             images.append(img)
             cover.append(s)
         stats["warped_fraction"] = float(np.mean([s["warped"] for s in cover])) if cover else 0.0
         stats["inpainted_fraction"] = float(np.mean([s["inpainted"] for s in cover])) if cover else 0.0
+        stats["empty_filled_fraction"] = float(np.mean([s["empty_filled"] for s in cover])) if cover else 0.0
         return images
+
+    def _fill_empty_with_gaussians(self, renders, images, stride: int = 4) -> int:
+        """Seed Gaussians where pseudo views show nothing: on a `stride`-pixel grid of the empty pixels,
+        at the depth filled in from the surface around them, coloured by the pseudo target. Without
+        them the filled targets could only be reached by stretching the Gaussians at the edges."""
+        from gsgs_engine.gaussians import inverse_sigmoid, num_sh_coeffs, rgb_to_sh_dc
+        from gsgs_engine.priors.warp import unproject
+        from gsgs_engine.priors.warp_inpaint import fill_empty_depth, surface_depth
+        from gsgs_engine.train.densify import append_gaussians
+
+        tr = self.trainer
+        model = tr.model
+        points, colours, sizes = [], [], []
+        for p, out, img in zip(self.pseudo, renders, images):
+            z = surface_depth(out.depth, out.alpha)
+            empty = z <= 0
+            if not bool(empty.any()) or bool(empty.all()):
+                continue
+            zf = fill_empty_depth(z)
+            grid = torch.zeros_like(empty)
+            grid[stride // 2::stride, stride // 2::stride] = True
+            pick = empty & grid
+            points.append(unproject(p.camera, zf)[pick])
+            colours.append(img[pick])
+            sizes.append(zf[pick] * stride / p.camera.fx)
+        if not points:
+            return 0
+        means = torch.cat(points).float()
+        n = means.shape[0]
+        dev = model.means.device
+        new = {"means": means,
+               "log_scales": torch.log(torch.cat(sizes).float().clamp_min(1e-6))[:, None].repeat(1, 3),
+               "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1),
+               "opacity_logits": inverse_sigmoid(torch.full((n,), 0.1)),
+               "sh_dc": rgb_to_sh_dc(torch.cat(colours).float().clamp(0, 1))[:, None, :],
+               "sh_rest": torch.zeros(n, num_sh_coeffs(model.max_sh_degree) - 1, 3)}
+        append_gaussians(model, tr.optimizer, {k: v.to(dev) for k, v in new.items()})
+        tr.stats.grow(n)
+        return n
 
     def _inverse_depth_of(self, camera, image, depth=None, alpha=None):
         from gsgs_engine.priors.depth_reg import inverse_depth
@@ -445,6 +500,8 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--no-depth-reg", action="store_true", help="disable the depth regulariser (ablation)")
     g.add_argument("--no-geo-loss", action="store_true", help="disable the geometry-aware LoRA loss (ablation)")
     g.add_argument("--pseudo-jitter", type=float, default=0.0, help="relative jitter of the pseudo poses")
+    g.add_argument("--pseudo-reach", type=float, default=PriorConfig.reach,
+                   help="forward-facing rigs: half the pseudo views on a ring at this many rig radii (0 = none)")
     g.add_argument("--diffusion-model", default=None, help="local Stable Diffusion 1.5 folder (diffusers layout)")
     g.add_argument("--depth-adapter", default=None, help="local depth T2I-Adapter folder")
     g.add_argument("--diffusion-strength", type=float, default=0.6,
@@ -459,7 +516,7 @@ def prior_config_from_args(args) -> PriorConfig:
     return PriorConfig(prior=args.prior, depth_source=args.depth_source, num_pseudo=args.pseudo_views,
                        rounds=args.rounds, warmup_fraction=args.warmup_fraction, pseudo_weight=args.pseudo_weight,
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
-                       jitter=args.pseudo_jitter, diffusion_model=args.diffusion_model,
+                       jitter=args.pseudo_jitter, reach=args.pseudo_reach, diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
                        diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,
                                   "resolution": args.diffusion_resolution, "lora_steps": args.lora_steps})

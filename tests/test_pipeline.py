@@ -119,3 +119,39 @@ def test_depth_term_is_dropped_when_the_sparse_depth_covers_too_little(tmp_path)
     plan = metrics["plan"]["prior_plan"]
     assert plan["depth_coverage"] < 0.10 and "covers" in plan["depth_source_disabled"]
     assert "depth_reg" not in metrics["final_losses"] and "pseudo_l1" in metrics["final_losses"]
+
+
+def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
+    from gsgs_engine.pipeline import PriorLoop
+    from gsgs_engine.priors.warp import project
+    from test_trainer import make_trainer
+
+    trainer = make_trainer(iters=40, backend="reference", sh_degree=1)
+    trainer.setup()
+    prior = PriorConfig(prior="warp", num_pseudo=3, rounds=1, depth_reg=False)
+    loop = PriorLoop(prior, resolve_prior_plan(prior, 3), tmp_path, log=lambda m: None)
+    loop.install(trainer)
+    assert loop.fill_empty  # RGB views: empty pixels are unseen content, not background
+    with torch.no_grad():
+        renders = [trainer.render(p.camera) for p in loop.pseudo]
+    empty = [(r.alpha <= 0.5) for r in renders]
+    assert any(bool(e.any()) for e in empty)
+    images = [r.color.clone() for r in renders]
+    n0 = trainer.model.num_gaussians
+    added = loop._fill_empty_with_gaussians(renders, images)
+    model = trainer.model
+    assert added > 0 and model.num_gaussians == n0 + added
+    assert trainer.stats.grad_accum.shape[0] == model.num_gaussians
+    for group in trainer.optimizer.param_groups:
+        assert group["params"][0].shape[0] == model.num_gaussians
+    assert model.all_finite()
+    # every new Gaussian sits in front of some pseudo camera, on the ray of one of its empty pixels
+    new = model.means.detach()[n0:]
+    hits = torch.zeros(added, dtype=torch.bool)
+    for p, e in zip(loop.pseudo, empty):
+        uv, z = project(p.camera, new)
+        u, v = uv[:, 0].floor().long(), uv[:, 1].floor().long()
+        inside = (z > 0) & (u >= 0) & (u < e.shape[1]) & (v >= 0) & (v < e.shape[0])
+        hits[inside] |= e[v[inside], u[inside]]
+    assert bool(hits.all())
+    assert trainer.train_step()  # the optimiser takes the grown model

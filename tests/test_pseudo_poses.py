@@ -6,7 +6,7 @@ import pytest
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera, look_at
 from gsgs_engine.priors.poses import (authored_pseudo_views, interpolated_pseudo_views, nearest_train_index,
-                                      neighbour_pairs, rotation_angle_deg)
+                                      neighbour_pairs, rotation_angle_deg, surrounding_pseudo_views)
 
 
 def _ring(n=6, radius=4.0, w=40, h=30):
@@ -94,3 +94,34 @@ def test_orbit_interpolation_keeps_pseudo_views_at_the_cameras_distance():
     fwd = [Camera(R=np.eye(3), t=np.array([-x, 0.0, 0.0]), fx=50, fy=50, cx=32, cy=32, width=64, height=64)
            for x in (0.0, 0.5, 1.0)]
     assert orbit_focus(fwd) is None
+
+
+def _forward_rig(w=40, h=30):
+    """Three cameras in a vertical line, all looking down +z (a handheld LLFF-style capture)."""
+    cams = []
+    for k, y in enumerate((-1.0, 0.2, 1.3)):
+        eye = np.array([0.1 * k, y, -5.0])
+        R, t = look_at(eye, eye + np.array([0.0, 0.0, 10.0]), up=(0.0, -1.0, 0.0))
+        cams.append(Camera(R=R, t=t, fx=40 + k, fy=40 + k, cx=w / 2, cy=h / 2, width=w, height=h, name=f"f{k}"))
+    return cams
+
+
+def test_surrounding_poses_ring_the_rig_at_the_requested_reach():
+    train = _forward_rig()
+    centres = np.stack([c.center for c in train])
+    centroid = centres.mean(0)
+    radius = np.linalg.norm(centres - centroid, axis=1).max()
+    views = surrounding_pseudo_views(train, 4, reach=2.0, first_index=7)
+    assert [v.name for v in views] == ["pseudo_007", "pseudo_008", "pseudo_009", "pseudo_010"]
+    for v in views:
+        offset = v.camera.center - centroid
+        assert np.isclose(np.linalg.norm(offset), 2.0 * radius)
+        assert abs(offset @ np.array([0.0, 0.0, 1.0])) < 1e-9  # in the plane across the viewing direction
+        ref = train[v.nearest_train]
+        assert v.nearest_train == int(np.argmin(np.linalg.norm(centres - v.camera.center, axis=1)))
+        assert np.allclose(v.camera.R, ref.R) and v.camera.fx == ref.fx and v.source == "surrounding"
+        v.camera.validate()
+    # the first pose lies along the rig's right axis: beyond the rig sideways, where no camera went
+    assert views[0].camera.center[0] - centroid[0] > 1.9 * radius
+    assert surrounding_pseudo_views(train, 0) == [] and surrounding_pseudo_views(train, 4, reach=0.0) == []
+    assert surrounding_pseudo_views(train[:1], 4) == []

@@ -4,7 +4,7 @@ import numpy as np
 import torch
 
 from gsgs_engine.cameras import Camera, look_at
-from gsgs_engine.priors.warp_inpaint import TrainingPhoto, inpaint, surface_depth, warp_inpaint
+from gsgs_engine.priors.warp_inpaint import TrainingPhoto, fill_empty_depth, inpaint, surface_depth, warp_inpaint
 
 
 def _cam(eye, w=48, h=40, f=50.0):
@@ -70,3 +70,27 @@ def test_inpaint_fills_only_holes_and_surface_depth_is_safe():
     assert torch.equal(out[~holes], img[~holes]) and not torch.equal(out[holes], img[holes])
     z = surface_depth(torch.tensor([[0.0, 1.0]]), torch.tensor([[0.0, 0.5 + 1e-3]]))
     assert z[0, 0] == 0 and torch.isfinite(z).all()
+
+
+def test_fill_empty_inpaints_what_the_render_leaves_empty():
+    cam = _cam([0.0, 0.0, -4.0], w=32, h=24)
+    img, depth = _plane_view(cam, _texture)
+    alpha = torch.ones_like(depth)
+    alpha[:, -6:] = 0.0  # unseen content at the right edge (a photo scene has no background there)
+    render = torch.ones_like(img)
+    image, stats = warp_inpaint(cam, render, depth * alpha, alpha, [TrainingPhoto(cam, img, depth)], fill_empty=True)
+    assert stats["empty_filled"] == 6 / 32
+    # filled from the content beside it, not left at the render's white
+    assert (image[:, -6:] - 1.0).abs().mean() > 0.1
+    assert (image[:, -6:] - img[:, -7:-6]).abs().mean() < (1.0 - img[:, -7:-6]).abs().mean()
+
+
+def test_fill_empty_depth_extends_the_surface_and_keeps_known_depth():
+    z = torch.full((20, 30), 4.0)
+    z[:, 20:] = 0.0
+    z[:10, :20] = 6.0
+    filled = fill_empty_depth(z)
+    assert torch.equal(filled[:, :20], z[:, :20])
+    assert torch.isfinite(filled).all() and (filled[:, 20:] >= 4.0).all() and (filled[:, 20:] <= 6.0).all()
+    assert filled[:5, 25].mean() > filled[-5:, 25].mean()  # nearer the 6.0 rows, deeper
+    assert torch.equal(fill_empty_depth(torch.zeros(4, 4)), torch.zeros(4, 4))  # nothing to fill from

@@ -1,7 +1,8 @@
 """Pseudo poses (METHOD.md "Pseudo views"): where the prior hallucinates unseen views.
 
 Interpolated between neighbouring training cameras (centres linearly, orientations by
-slerp, optional jitter) plus any poses an artist authored in Blender. A pseudo pose keeps
+slerp, optional jitter), for forward-facing rigs also on a ring around the cameras (views
+past the rig's edges), plus any poses an artist authored in Blender. A pseudo pose keeps
 the intrinsics of its nearest training camera and remembers that camera's index (the
 geometry-aware loss warps into it).
 """
@@ -20,7 +21,7 @@ from gsgs_engine.cameras import (Camera, interpolate_cameras, interpolate_camera
 class PseudoView:
     camera: Camera
     nearest_train: int  # index into the training views
-    source: str  # "interpolated" | "authored"
+    source: str  # "interpolated" | "surrounding" | "authored"
 
     @property
     def name(self) -> str:
@@ -97,6 +98,45 @@ def interpolated_pseudo_views(train: list[Camera], count: int, jitter: float = 0
             if time is not None:
                 cam = replace(cam, time=time)
             views.append(PseudoView(cam, near, "interpolated"))
+    return views
+
+
+def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 1.5, first_index: int = 0,
+                             time: float | None = None) -> list[PseudoView]:
+    """`count` poses on a ring around a forward-facing rig, beyond the training cameras.
+
+    The ring lies in the plane across the mean viewing direction, centred on the cameras'
+    centroid, with radius `reach` x the rig's radius (the largest centre-to-centroid distance),
+    its first pose along the cameras' mean right axis. Each pose looks the way its nearest
+    training camera looks and takes its intrinsics. Interpolated poses stay inside the rig;
+    these see past its edges, where novel views in any direction lose content (measured on
+    llff_flower 3 views: test views beside the rig showed ~20% empty image).
+    """
+    if count <= 0 or len(train) < 2 or reach <= 0:
+        return []
+    centres = np.stack([c.center for c in train])
+    centroid = centres.mean(axis=0)
+    radius = float(np.linalg.norm(centres - centroid, axis=1).max())
+    if radius < 1e-9:
+        return []
+    forward = np.mean([c.R[2] for c in train], axis=0)
+    forward /= max(float(np.linalg.norm(forward)), 1e-12)
+    right = np.mean([c.R[0] for c in train], axis=0)
+    right -= forward * float(right @ forward)
+    if float(np.linalg.norm(right)) < 1e-9:
+        return []
+    right /= float(np.linalg.norm(right))
+    down = np.cross(forward, right)
+    views = []
+    for k in range(count):
+        angle = 2.0 * np.pi * k / count
+        centre = centroid + reach * radius * (np.cos(angle) * right + np.sin(angle) * down)
+        near = int(np.argmin(np.linalg.norm(centres - centre, axis=1)))
+        ref = train[near]
+        cam = replace(ref, t=-ref.R @ centre, name=f"pseudo_{first_index + k:03d}")
+        if time is not None:
+            cam = replace(cam, time=time)
+        views.append(PseudoView(cam, near, "surrounding"))
     return views
 
 

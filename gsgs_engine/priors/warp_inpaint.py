@@ -4,7 +4,7 @@ For every pseudo-view pixel the render covers, its rendered depth places a surfa
 each training photo that sees that point (its own rendered depth agrees: visibility
 check) contributes its colour, nearer cameras weighted more. Covered pixels that no
 photo sees (disocclusions) are filled with OpenCV inpainting; pixels the render leaves
-empty keep the render (the scene background). Real, fast, and geometry-consistent by
+empty keep the render (the scene background) or, for scenes without one, are inpainted too. Real, fast, and geometry-consistent by
 construction.
 """
 
@@ -49,9 +49,29 @@ def inpaint(image: torch.Tensor, holes: torch.Tensor, radius: int = 3) -> torch.
     return out
 
 
+def fill_empty_depth(z: torch.Tensor, radius: int = 5) -> torch.Tensor:
+    """Surface depth (H, W, 0 = empty) with the empty pixels filled from the covered ones around them
+    (OpenCV Telea on the float map), for placing new Gaussians where a view shows nothing."""
+    empty = z <= 0
+    if not bool(empty.any()) or bool(empty.all()):
+        return z
+    import cv2
+
+    d = z.detach().cpu().numpy().astype(np.float32)
+    filled = cv2.inpaint(d, empty.cpu().numpy().astype(np.uint8) * 255, radius, cv2.INPAINT_TELEA)
+    lo, hi = float(d[d > 0].min()), float(d[d > 0].max())
+    out = torch.from_numpy(np.clip(filled, lo, hi)).to(z)
+    return torch.where(empty, out, z)
+
+
 def warp_inpaint(camera: Camera, render: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor,
-                 photos: list[TrainingPhoto], rel_tolerance: float = 0.05) -> tuple[torch.Tensor, dict]:
-    """A pseudo-view image (H, W, 3) from the training photos; returns it with coverage statistics."""
+                 photos: list[TrainingPhoto], rel_tolerance: float = 0.05, fill_empty: bool = False
+                 ) -> tuple[torch.Tensor, dict]:
+    """A pseudo-view image (H, W, 3) from the training photos; returns it with coverage statistics.
+
+    `fill_empty` (scenes without a real background, e.g. photos): pixels the render leaves
+    empty are inpainted too, from the content around them, rather than left as background.
+    """
     z = surface_depth(depth.detach(), alpha.detach())
     covered = z > 0
     acc = torch.zeros_like(render)
@@ -67,8 +87,9 @@ def warp_inpaint(camera: Camera, render: torch.Tensor, depth: torch.Tensor, alph
     image = render.detach().clone()
     image[seen] = acc[seen] / wsum[seen][:, None]
     holes = covered & ~seen
-    image = inpaint(image, holes)
+    empty = ~covered if fill_empty else torch.zeros_like(covered)
+    image = inpaint(image, holes | empty)
     n = max(int(covered.sum()), 1)
     stats = {"covered": float(covered.float().mean()), "warped": float(seen.sum()) / n,
-             "inpainted": float(holes.sum()) / n}
+             "inpainted": float(holes.sum()) / n, "empty_filled": float(empty.float().mean())}
     return image.clamp(0, 1), stats

@@ -55,6 +55,11 @@ class DensifyStats:
         avg = self.grad_accum / self.denom.clamp_min(1)
         return torch.nan_to_num(avg, nan=0.0, posinf=0.0, neginf=0.0)
 
+    def grow(self, extra: int) -> None:
+        """Make room for `extra` Gaussians appended to the model (their statistics start at zero)."""
+        pad = lambda t: torch.cat([t, torch.zeros(extra, dtype=t.dtype, device=t.device)])  # noqa: E731
+        self.grad_accum, self.denom, self.max_radii = pad(self.grad_accum), pad(self.denom), pad(self.max_radii)
+
     def reset(self, n: int) -> None:
         self.__init__(n, self.grad_accum.device)
 

@@ -10,27 +10,39 @@ import torch
 DEFAULT_LAMBDA_DSSIM = 0.2
 
 
-def l1_loss(render: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    return (render - target).abs().mean()
+def _masked_mean(values: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Mean of `values` (H, W) over `mask` (H, W, weights in [0, 1]); the plain mean without one."""
+    if mask is None:
+        return values.mean()
+    m = mask.to(values.dtype)
+    return (values * m).sum() / m.sum().clamp_min(1.0)
 
 
-def dssim_loss(render: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """D-SSIM = 1 - SSIM (3DGS's convention; images [H, W, 3] in [0, 1])."""
-    from gsgs_engine.metrics import ssim
+def l1_loss(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean absolute error; with `mask` (H, W) only over the pixels it keeps."""
+    return _masked_mean((render - target).abs().mean(dim=-1), mask)
 
-    return 1.0 - ssim(render, target)
+
+def dssim_loss(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """D-SSIM = 1 - SSIM (3DGS's convention; images [H, W, 3] in [0, 1]); with `mask` (H, W) the
+    SSIM map is averaged over the pixels it keeps."""
+    from gsgs_engine.metrics import ssim_map
+
+    return 1.0 - _masked_mean(ssim_map(render, target)[0].mean(dim=0), mask)
 
 
 def photometric_terms(render: torch.Tensor, target: torch.Tensor, lambda_dssim: float = DEFAULT_LAMBDA_DSSIM,
-                      weight: float = 1.0, prefix: str = "") -> dict[str, tuple[float, torch.Tensor]]:
+                      weight: float = 1.0, prefix: str = "", mask: torch.Tensor | None = None
+                      ) -> dict[str, tuple[float, torch.Tensor]]:
     """One view's part of eq. 11: {name: (weight, term)}.
 
     eq. 11 writes L1 + lambda * D-SSIM; like 3DGS (and the paper's lambda = 0.2 taken from it)
     we weight it (1 - lambda) * L1 + lambda * D-SSIM, which keeps the loss scale at lambda = 0.
-    `weight` scales the whole view (pseudo views may count less than real ones).
+    `weight` scales the whole view (pseudo views may count less than real ones); `mask` (H, W)
+    limits both terms to the pixels a pseudo target is confident about.
     """
-    return {f"{prefix}l1": (weight * (1.0 - lambda_dssim), l1_loss(render, target)),
-            f"{prefix}dssim": (weight * lambda_dssim, dssim_loss(render, target))}
+    return {f"{prefix}l1": (weight * (1.0 - lambda_dssim), l1_loss(render, target, mask)),
+            f"{prefix}dssim": (weight * lambda_dssim, dssim_loss(render, target, mask))}
 
 
 def total_loss(terms: dict[str, tuple[float, torch.Tensor]]) -> torch.Tensor:

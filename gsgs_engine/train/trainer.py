@@ -75,6 +75,7 @@ class PseudoView:
     weight: float = 1.0
     name: str = ""
     nearest_train: int | None = None  # index into the trainer's training views
+    mask: np.ndarray | torch.Tensor | None = None  # (H, W): the pixels the target is trusted on (None: all)
     extra: dict = field(default_factory=dict)
 
 
@@ -236,6 +237,7 @@ class Trainer:
         self.callbacks: list[Callable[["Trainer", int], None]] = []
         self.pseudo_views: list[PseudoView] = []
         self._pseudo_targets: list[torch.Tensor] = []
+        self._pseudo_masks: list[torch.Tensor | None] = []
         self.phase_seconds: dict[str, float] = {"init": 0.0, "render": 0.0, "backward": 0.0, "optimise": 0.0,
                                                 "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
         self.step = 0
@@ -325,8 +327,12 @@ class Trainer:
                 raise GsgsError(f"pseudo view {pv.name!r}: image is {t.shape[1]}x{t.shape[0]} but its camera is "
                                 f"{pv.camera.width}x{pv.camera.height}")
             targets.append(t.to(self.device))
+            if pv.mask is not None and tuple(pv.mask.shape) != tuple(t.shape[:2]):
+                raise GsgsError(f"pseudo view {pv.name!r}: mask is {tuple(pv.mask.shape)}, image {tuple(t.shape[:2])}")
         self.pseudo_views = list(views)
         self._pseudo_targets = targets
+        self._pseudo_masks = [None if pv.mask is None else torch.as_tensor(pv.mask).to(self.device, torch.float32)
+                              for pv in views]
 
     # -- rendering ------------------------------------------------------------------------------
     def render(self, camera: Camera, background: torch.Tensor | None = None, sh_degree: int | None = None):
@@ -379,7 +385,7 @@ class Trainer:
             pv = self.pseudo_views[j]
             p_out = self.render(pv.camera)  # a pseudo target has the scene background baked in
             terms.update(photometric_terms(p_out.color, self._pseudo_targets[j], cfg.lambda_dssim,
-                                           weight=pv.weight, prefix="pseudo_"))
+                                           weight=pv.weight, prefix="pseudo_", mask=self._pseudo_masks[j]))
             ctx.pseudo, ctx.pseudo_render = pv, p_out
             renders.append((p_out, pv.camera))
         for name, fn in self.loss_terms.items():
