@@ -10,10 +10,10 @@ Chosen from the measured fronts (docs/accuracy_*.md, 2026-11-22):
   - llff_flower, 3 views, H100: 300 it 16.41 / 14 s, 3000 it 16.59 / 46 s, 6000 it 16.87 / 92 s.
   - lego_200, 2-core CPU (docs/accuracy_lego_200.md): 1000 it without a prior 22.84 dB in 130 s;
     with the weights-free prior (warp-inpaint; the SfM depth term switches itself off on lego)
-    22.02 dB in 200 s: the prior is off the front (on llff_flower it is just on it: +0.19 dB for
-    1.6x the time), so no preset turns it on. `--prior auto`
-    stays one flag away, and presets will include it once a measured run puts it on the front
-    (diffusion weights, a depth estimator).
+    22.02 dB in 200 s: the prior is off the front. On llff_flower (3 views, CPU) it is on it:
+    17.92 dB against 16.33 for 1.6x the time, from filling content beside a forward-facing rig.
+    A preset applies to any capture, so none turns the prior on (it would cost lego-like orbits
+    0.8 dB); `--prior auto` stays one flag away.
 So: fast = 300 iterations, balanced = 1000 (the default), best = 3000; SH from the effect plan.
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default

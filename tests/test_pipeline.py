@@ -155,3 +155,18 @@ def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
         hits[inside] |= e[v[inside], u[inside]]
     assert bool(hits.all())
     assert trainer.train_step()  # the optimiser takes the grown model
+
+
+def test_prior_flags_reach_the_config_and_the_plan():
+    import argparse
+
+    from gsgs_engine.pipeline import add_prior_arguments, prior_config_from_args
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--prior", default="none")
+    add_prior_arguments(parser)
+    cfg = prior_config_from_args(parser.parse_args(["--prior", "warp", "--pseudo-reach", "2.5", "--pseudo-views", "6"]))
+    assert (cfg.prior, cfg.reach, cfg.num_pseudo) == ("warp", 2.5, 6)
+    assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 3.0
+    plan = resolve_prior_plan(cfg, 3)
+    assert plan["reach"] == 2.5 and plan["pseudo_views"] == 6
