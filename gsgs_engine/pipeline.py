@@ -346,8 +346,10 @@ class PriorLoop:
         self._save_round(k, images, renders, stats)
         self.rounds_done += 1
         self.round_stats.append(stats)
+        seeded = stats.get("gaussians_added_in_empty", 0)
         self.log(f"prior round {k + 1}/{len(self.steps)} at step {tr.step}: {len(images)} pseudo views "
-                 f"({self.plan['generator']}, {time.perf_counter() - t0:.1f} s)")
+                 f"({self.plan['generator']}, {time.perf_counter() - t0:.1f} s)"
+                 + (f", {seeded} Gaussians seeded where they showed nothing" if seeded else ""))
 
     def _warp_round(self, photos, renders, stats) -> list[torch.Tensor]:
         from gsgs_engine.priors.warp_inpaint import warp_inpaint
@@ -389,14 +391,20 @@ class PriorLoop:
             sizes.append(zf[pick] * stride / p.camera.fx)
         if not points:
             return 0
-        means = torch.cat(points).float()
+        means, colours, sizes = torch.cat(points).float(), torch.cat(colours).float(), torch.cat(sizes).float()
+        budget = max(0, tr.config.densify_config.max_gaussians - model.num_gaussians)
+        if means.shape[0] > budget:  # the model's size cap holds for seeded Gaussians too: an even subsample
+            keep = torch.linspace(0, means.shape[0] - 1, budget).round().long() if budget else torch.zeros(0).long()
+            means, colours, sizes = means[keep], colours[keep], sizes[keep]
         n = means.shape[0]
+        if n == 0:
+            return 0
         dev = model.means.device
         new = {"means": means,
-               "log_scales": torch.log(torch.cat(sizes).float().clamp_min(1e-6))[:, None].repeat(1, 3),
+               "log_scales": torch.log(sizes.clamp_min(1e-6))[:, None].repeat(1, 3),
                "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1),
                "opacity_logits": inverse_sigmoid(torch.full((n,), 0.1)),
-               "sh_dc": rgb_to_sh_dc(torch.cat(colours).float().clamp(0, 1))[:, None, :],
+               "sh_dc": rgb_to_sh_dc(colours.clamp(0, 1))[:, None, :],
                "sh_rest": torch.zeros(n, num_sh_coeffs(model.max_sh_degree) - 1, 3)}
         append_gaussians(model, tr.optimizer, {k: v.to(dev) for k, v in new.items()})
         tr.stats.grow(n)

@@ -155,6 +155,11 @@ def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
         hits[inside] |= e[v[inside], u[inside]]
     assert bool(hits.all())
     assert trainer.train_step()  # the optimiser takes the grown model
+    # the model's size cap holds: seeding fills the room left and no more
+    trainer.config.densify_config.max_gaussians = model.num_gaussians + 3
+    assert loop._fill_empty_with_gaussians(renders, images) == 3
+    assert loop._fill_empty_with_gaussians(renders, images) == 0
+    assert model.num_gaussians == trainer.config.densify_config.max_gaussians
 
 
 def test_prior_flags_reach_the_config_and_the_plan():
