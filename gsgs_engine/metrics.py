@@ -66,8 +66,9 @@ def ssim_map(img, gt, window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA)
     """Per-pixel structural similarity (B, C, H, W), as 3DGS's utils/loss_utils.ssim computes it.
 
     Gaussian window 11 x 11, sigma 1.5, zero padding of window // 2 (so any image size, even
-    1 x 1, works and the map has the image's size), C1 = 0.01^2, C2 = 0.03^2. The 2D window is separable, so two 1D passes give the same sums at a fraction of
-    the cost; the five local moments go through one grouped convolution.
+    1 x 1, works and the map has the image's size), C1 = 0.01^2, C2 = 0.03^2. The 2D window
+    is separable, so two 1D passes give the same sums at a fraction of the cost; the five
+    local moments go through one grouped convolution.
     """
     x, y = _as_bchw(img, gt)
     channels = x.shape[1]

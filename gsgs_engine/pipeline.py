@@ -212,8 +212,10 @@ class PriorLoop:
             self.pseudo += authored_pseudo_views(self.plan.get("authored_poses", []), cams)
         # Scenes without a real background (photos): what a pseudo view shows empty is unseen content,
         # to be filled (inpainted, and new Gaussians placed there); with one (RGBA), empty is background.
-        # (4D models carry per-Gaussian motion that seeding does not set up: static scenes only.)
-        self.fill_empty = not trainer.scene.has_alpha and not trainer.scene.has_time
+        # (4D models carry per-Gaussian motion that seeding does not set up: static scenes only;
+        # the filling is the warp-inpaint generator's.)
+        self.fill_empty = (self.plan["generator"] == "warp-inpaint" and not trainer.scene.has_alpha
+                           and not trainer.scene.has_time)
         self.plan["fill_empty"] = self.fill_empty
         t0 = time.perf_counter()
         self._setup_depth_source(trainer)
@@ -334,7 +336,7 @@ class PriorLoop:
         # (right after an opacity reset, say); unless empty is unseen content, which the round fills.
         train_cover = float(np.median([float((ph.depth > 0).float().mean()) for ph in photos]))
         keep = [self.fill_empty or float((out.alpha > 0.5).float().mean()) >= 0.5 * train_cover for out in renders]
-        if self.fill_empty and self.plan["generator"] == "warp-inpaint":
+        if self.fill_empty:
             stats["gaussians_added_in_empty"] = self._fill_empty_with_gaussians(renders, images)
         stats["pseudo_views_used"] = int(sum(keep))
         stats["pseudo_views_skipped_low_coverage"] = len(keep) - int(sum(keep))

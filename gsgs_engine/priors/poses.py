@@ -101,8 +101,8 @@ def interpolated_pseudo_views(train: list[Camera], count: int, jitter: float = 0
     return views
 
 
-def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 1.5, first_index: int = 0,
-                             time: float | None = None) -> list[PseudoView]:
+def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 3.0,
+                             first_index: int = 0) -> list[PseudoView]:
     """`count` poses on a ring around a forward-facing rig, beyond the training cameras.
 
     The ring lies in the plane across the mean viewing direction, centred on the cameras'
@@ -134,8 +134,6 @@ def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 1.5
         near = int(np.argmin(np.linalg.norm(centres - centre, axis=1)))
         ref = train[near]
         cam = replace(ref, t=-ref.R @ centre, name=f"pseudo_{first_index + k:03d}")
-        if time is not None:
-            cam = replace(cam, time=time)
         views.append(PseudoView(cam, near, "surrounding"))
     return views
 

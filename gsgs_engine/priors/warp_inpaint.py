@@ -4,8 +4,8 @@ For every pseudo-view pixel the render covers, its rendered depth places a surfa
 each training photo that sees that point (its own rendered depth agrees: visibility
 check) contributes its colour, nearer cameras weighted more. Covered pixels that no
 photo sees (disocclusions) are filled with OpenCV inpainting; pixels the render leaves
-empty keep the render (the scene background) or, for scenes without one, are inpainted too. Real, fast, and geometry-consistent by
-construction.
+empty keep the render (the scene background) or, for scenes without one, are inpainted
+too. Real, fast, and geometry-consistent by construction.
 """
 
 from __future__ import annotations

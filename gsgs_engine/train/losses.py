@@ -10,24 +10,26 @@ import torch
 DEFAULT_LAMBDA_DSSIM = 0.2
 
 
-def _masked_mean(values: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
-    """Mean of `values` (H, W) over `mask` (H, W, weights in [0, 1]); the plain mean without one."""
-    if mask is None:
-        return values.mean()
+def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of `values` (H, W) over `mask` (H, W, weights in [0, 1])."""
     m = mask.to(values.dtype)
     return (values * m).sum() / m.sum().clamp_min(1.0)
 
 
 def l1_loss(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """Mean absolute error; with `mask` (H, W) only over the pixels it keeps."""
+    if mask is None:
+        return (render - target).abs().mean()
     return _masked_mean((render - target).abs().mean(dim=-1), mask)
 
 
 def dssim_loss(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """D-SSIM = 1 - SSIM (3DGS's convention; images [H, W, 3] in [0, 1]); with `mask` (H, W) the
     SSIM map is averaged over the pixels it keeps."""
-    from gsgs_engine.metrics import ssim_map
+    from gsgs_engine.metrics import ssim, ssim_map
 
+    if mask is None:
+        return 1.0 - ssim(render, target)
     return 1.0 - _masked_mean(ssim_map(render, target)[0].mean(dim=0), mask)
 
 
