@@ -199,7 +199,7 @@ class GSGS_OT_check_engine(bpy.types.Operator):
 
 ORIENTATIONS = [("LOOK_AT", "Look at Centre", "every pseudo camera looks at the scene centre"),
                 ("SLERP", "Interpolate", "orientation slerped between the two nearest training cameras")]
-# The engine's prior choices (gsgs_engine.pipeline.PRIOR_CHOICES), sent as settings["prior"].
+# The engine's prior choices (gsgs_engine.priors.config.PRIOR_CHOICES), sent as settings["prior"].
 GENERATORS = [("auto", "Auto", "diffusion when the model folders are set, else the weights-free warp prior"),
               ("diffusion", "Diffusion", "depth-conditioned latent diffusion with LoRA adaptation (needs models)"),
               ("warp", "Warp + Inpaint", "weights-free: warp training photos with rendered depth, inpaint holes"),

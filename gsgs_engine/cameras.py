@@ -284,6 +284,26 @@ def optical_axes_system(cameras) -> tuple[np.ndarray, np.ndarray]:
     return A, b
 
 
+def focus_point(cameras) -> tuple[np.ndarray, str]:
+    """The point the cameras look at: least-squares nearest point to all optical axes.
+
+    Forward-facing rigs (near-parallel axes) have no such point; there the focus is the mean
+    centre pushed along the mean axis to the scene's typical depth (geometric mean of near/far).
+    """
+    centers = np.stack([c.center for c in cameras])
+    dirs = np.stack([c.R[2] for c in cameras])  # optical axis (camera +z) in world coordinates
+    A, b = optical_axes_system(cameras)
+    eig = np.linalg.eigvalsh(A)
+    if len(cameras) >= 2 and eig[0] > 0.05 * len(cameras):  # axes cross at a real angle
+        return np.linalg.solve(A, b), "optical axes intersection"
+    near = getattr(cameras[0], "near", None)
+    far = getattr(cameras[0], "far", None)
+    depth = float(np.sqrt(near * far)) if near and far else 1.0
+    axis = dirs.mean(0)
+    axis /= max(np.linalg.norm(axis), 1e-12)
+    return centers.mean(0) + depth * axis, "forward-facing: mean axis at the scene depth"
+
+
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera (R, t) of an OpenCV camera at `eye` looking at `target`, `up` pointing up in the image."""
     eye = np.asarray(eye, dtype=np.float64)

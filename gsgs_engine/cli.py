@@ -14,16 +14,16 @@ from gsgs_engine import GsgsError, __version__
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "train": ("gsgs_engine.train.command", "train a Gaussian-splat scene from sparse views (the main job)"),
-    "eval": ("gsgs_engine.train.eval_command", "re-evaluate a trained result on a scene's test views"),
-    "sfm": ("gsgs_engine.sfm_command", "photos -> cameras + sparse points (pycolmap)"),
-    "run-job": ("gsgs_engine.job_command", "run a job folder written by the Blender add-on or a script"),
-    "build-ext": ("gsgs_engine.render.cpu_backend", "build the compiled CPU rasteriser"),
+    "train": ("gsgs_engine.commands.train", "train a Gaussian-splat scene from sparse views (the main job)"),
+    "eval": ("gsgs_engine.commands.eval", "re-evaluate a trained result on a scene's test views"),
+    "sfm": ("gsgs_engine.commands.sfm", "photos -> cameras + sparse points (pycolmap)"),
+    "run-job": ("gsgs_engine.commands.run_job", "run a job folder written by the Blender add-on or a script"),
+    "build-ext": ("gsgs_engine.commands.build_ext", "build the compiled CPU rasteriser"),
 }
 BENCHMARKS: dict[str, tuple[str, str]] = {
-    "rasterizer": ("gsgs_engine.render.bench", "forward / backward time and memory of each rasteriser backend"),
-    "accuracy": ("gsgs_engine.bench_accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
-    "dynamic": ("gsgs_engine.bench_dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
+    "rasterizer": ("gsgs_engine.bench.rasterizer", "forward / backward time and memory of each rasteriser backend"),
+    "accuracy": ("gsgs_engine.bench.accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
+    "dynamic": ("gsgs_engine.bench.dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
 }
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from gsgs_engine import GsgsError
+from gsgs_engine.cameras import focus_point
 
 EFFECTS = ("time", "sh_degree", "background", "depth", "pseudo_views", "generator")
 
@@ -39,7 +40,7 @@ DENSE_MAX_GAP_DEG = 20.0
 SH_SPREAD = (0.02, 0.04, 0.07)
 MIN_MEASURED_POINTS = 20
 # Depth regularisation from SfM points needs enough of them to cover the views (as the prior's
-# own plan: gsgs_engine.pipeline.resolve_prior_plan).
+# own plan: gsgs_engine.priors.config.resolve_prior_plan).
 MIN_DEPTH_POINTS = 50
 SPARSE_DEPTH_MEASURED = ("measured to lower test PSNR (1000 steps, CPU: lego_200 8 views -1.57 dB depth-only, "
                          "and a further -1.01 dB on top of warp-inpaint; llff_flower 3 views -0.15 dB depth-only)")
@@ -121,28 +122,6 @@ def check_overrides(overrides: dict) -> None:
 
 
 # -- measurements ------------------------------------------------------------------------------------
-def focus_point(cameras) -> tuple[np.ndarray, str]:
-    """The point the cameras look at: least-squares nearest point to all optical axes.
-
-    Forward-facing rigs (near-parallel axes) have no such point; there the focus is the mean
-    centre pushed along the mean axis to the scene's typical depth (geometric mean of near/far).
-    """
-    from gsgs_engine.cameras import optical_axes_system
-
-    centers = np.stack([c.center for c in cameras])
-    dirs = np.stack([c.R[2] for c in cameras])  # optical axis (camera +z) in world coordinates
-    A, b = optical_axes_system(cameras)
-    eig = np.linalg.eigvalsh(A)
-    if len(cameras) >= 2 and eig[0] > 0.05 * len(cameras):  # axes cross at a real angle
-        return np.linalg.solve(A, b), "optical axes intersection"
-    near = getattr(cameras[0], "near", None)
-    far = getattr(cameras[0], "far", None)
-    depth = float(np.sqrt(near * far)) if near and far else 1.0
-    axis = dirs.mean(0)
-    axis /= max(np.linalg.norm(axis), 1e-12)
-    return centers.mean(0) + depth * axis, "forward-facing: mean axis at the scene depth"
-
-
 def coverage(cameras, near: float | None = None, far: float | None = None) -> dict:
     """View count and the median / max angle (deg) between a view and its nearest neighbour, seen from the focus."""
     n = len(cameras)
@@ -279,7 +258,7 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
     the SH degree or the depth source is auto and it is not given; `shared_triangulation(plan)`
     lets the trainer's initialisation reuse it instead of triangulating again.
     """
-    from gsgs_engine.pipeline import PriorConfig, diffusion_configured
+    from gsgs_engine.priors.config import PriorConfig, diffusion_configured
 
     t_start = time.perf_counter()
     prior_config = prior_config or PriorConfig(prior="none")
@@ -433,7 +412,7 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
 
 def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
     """(TrainConfig, PriorConfig) that model exactly the plan's effects (copies; inputs untouched)."""
-    from gsgs_engine.pipeline import PriorConfig
+    from gsgs_engine.priors.config import PriorConfig
 
     tc = replace(train_config, sh_degree=int(plan["sh_degree"].value),
                  random_background=plan["background"].value == "transparent")
@@ -499,27 +478,6 @@ def _views_key(views) -> tuple:
         out.append((cam.name, cam.width, cam.height, round(cam.fx, 6), tuple(np.round(cam.t, 6)),
                     tuple(np.round(cam.R, 6).ravel())))
     return tuple(out)
-
-
-def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_dir, overrides: dict | None = None,
-                       job=None, resume: bool = False, plan: dict | None = None, stream=None, log=print,
-                       authored_poses: list | None = None) -> dict:
-    """Plan the effects, print the plan, train what it enables; metrics.json["plan"]["effects"] holds it."""
-    from gsgs_engine.pipeline import run_prior_training
-
-    effect_plan = plan_effects(scene, train_config, prior_config, overrides, log=log)
-    log(effect_plan.format())
-    tc, pc = apply_effect_plan(effect_plan, train_config, prior_config)
-    scene = scene_for_plan(scene, effect_plan)
-    merged = {**(plan or {}), "effects": effect_plan.to_dict()}
-    with shared_triangulation(effect_plan, scene.train):
-        metrics = run_prior_training(scene, tc, pc, out_dir, checkpoint_dir, job=job, resume=resume, plan=merged,
-                                     stream=stream, authored_poses=authored_poses)
-    metrics.setdefault("phase_seconds", {})["plan"] = round(effect_plan.seconds, 3)
-    from gsgs_engine.job import write_json_atomic
-
-    write_json_atomic(Path(out_dir) / "metrics.json", metrics)
-    return metrics
 
 
 def add_effects_argument(parser) -> None:

@@ -1,6 +1,6 @@
 """Presets `fast`, `balanced`, `best`: points on the accuracy/time front of `gsgs bench accuracy`.
 
-Each preset is a bench cell (the same keys as gsgs_engine.bench_accuracy_cell), so the full
+Each preset is a bench cell (the same keys as gsgs_engine.bench.accuracy_cell), so the full
 grid (`gsgs bench accuracy DATA --grid full`) measures exactly what a preset runs.
 
 Chosen from the measured fronts (docs/accuracy_*.md, 2026-11-22):
@@ -40,8 +40,8 @@ PRESETS: dict[str, dict] = {
 }
 PRESET_NAMES = tuple(PRESETS)
 
-# preset key -> `gsgs train` argument dest (as gsgs_engine.train.command and
-# gsgs_engine.pipeline.add_prior_arguments name them)
+# preset key -> `gsgs train` argument dest (as gsgs_engine.commands.train and
+# gsgs_engine.priors.config.add_prior_arguments name them)
 ARG_DESTS = {"iters": "iters", "resolution_scale": "resolution_scale", "prior": "prior",
              "pseudo_views": "pseudo_views", "rounds": "rounds", "backend": "backend", "sh_degree": "sh_degree"}
 

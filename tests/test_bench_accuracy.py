@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from gsgs_engine import GsgsError
-from gsgs_engine import bench_accuracy as ba
-from gsgs_engine.bench_accuracy_cell import normalise_cell, overrides_for
+from gsgs_engine.bench import accuracy as ba
+from gsgs_engine.bench.accuracy_cell import normalise_cell, overrides_for
 from gsgs_engine.cameras import Camera, nerf_c2w_from_camera
 
 SIZE = 24
@@ -214,7 +214,7 @@ def test_presets_are_grid_cells_measured_by_the_full_grid():
 
 
 def test_apply_preset_fills_defaults_and_keeps_typed_flags():
-    from gsgs_engine.pipeline import PriorConfig, add_prior_arguments
+    from gsgs_engine.priors.config import PriorConfig, add_prior_arguments
     from gsgs_engine.presets import add_preset_argument, apply_preset
     from gsgs_engine.train.trainer import TrainConfig
 

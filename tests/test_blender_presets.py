@@ -107,14 +107,14 @@ def test_editing_a_field_away_from_the_preset_makes_it_custom(addon, field):
 
 
 def _engine_configs(settings: dict):
-    from gsgs_engine.pipeline import prior_config_from_settings
-    from gsgs_engine.train.trainer import config_from_settings
+    from gsgs_engine.priors.config import prior_config_from_settings
+    from gsgs_engine.reconstruct import config_from_settings
 
     return config_from_settings(settings), prior_config_from_settings(settings)
 
 
 def _preset_configs(name: str):
-    from gsgs_engine.pipeline import PriorConfig
+    from gsgs_engine.priors.config import PriorConfig
     from gsgs_engine.train.trainer import TrainConfig
 
     tc, pc, _, _ = apply_preset((TrainConfig(), PriorConfig()), name=name)

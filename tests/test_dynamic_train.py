@@ -19,7 +19,9 @@ from gsgs_engine.spacetime import SpacetimeModel, render_at
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats
 from gsgs_engine.train.dynamic import (SpacetimeTrainer, densify_and_prune_4d, initialise_spacetime, make_trainer,
                                        peak_opacity_in_clip, spacetime_pseudo_views)
-from gsgs_engine.train.trainer import PseudoView, TrainConfig, Trainer
+from gsgs_engine.train.techniques.pseudo_views import PseudoSupervision, PseudoView
+from gsgs_engine.train.trainer import TrainConfig, Trainer
+from test_trainer import Probe
 
 SIZE = 16
 
@@ -194,10 +196,11 @@ def test_training_steps_render_at_time_move_temporal_params_and_use_pseudo_times
     before = {k: v.detach().clone() for k, v in trainer.model.params.items()}
     cam = replace(scene.test[0].camera, time=0.25)
     target = np.full((SIZE, SIZE, 3), 0.5, np.float32)
-    trainer.set_pseudo_views([PseudoView(camera=cam, image=target, weight=0.5, name="p")])
+    trainer.add_technique(PseudoSupervision([PseudoView(camera=cam, image=target, weight=0.5, name="p")]))
     seen = []
-    trainer.loss_terms["probe"] = lambda ctx: seen.append((ctx.trainer.train_views[ctx.view_index].camera.time,
-                                                           ctx.pseudo.camera.time if ctx.pseudo else None))
+    trainer.add_technique(Probe(loss=lambda ctx: seen.append((
+        ctx.trainer.train_views[ctx.view_index].camera.time,
+        ctx.shared["pseudo"][1].camera.time if "pseudo" in ctx.shared else None))))
     trainer.train()
     assert trainer.step == 8 and trainer.nan_steps_skipped == 0
     assert {t for t, _ in seen} <= {0.0, 0.5, 1.0} and {p for _, p in seen} == {0.25}
@@ -253,7 +256,7 @@ def test_pseudo_views_at_pose_time_pairs_point_to_same_time_photos(clip):
 
 @pytest.mark.slow
 def test_bench_runs_all_three_variants(clip, tmp_path):
-    from gsgs_engine.bench_dynamic import format_table, run_dynamic_bench
+    from gsgs_engine.bench.dynamic import format_table, run_dynamic_bench
 
     scene = load_dynamic_scene(clip, train_cameras=2)
     results = run_dynamic_bench(scene, tmp_path, iters=12, per_frame_iters=4, init_points=80, log=lambda m: None)

@@ -14,11 +14,9 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
-from gsgs_engine.effect_plan import (DENSE_MAX_GAP_DEG, apply_effect_plan, coverage, exposure_corrected_spread,
-                                     identifiable_sh_degree, measure_view_dependence, parse_overrides,
-                                     plan_effects, sh_degree_for_spread, shared_triangulation)
+from gsgs_engine.effect_plan import DENSE_MAX_GAP_DEG, apply_effect_plan, coverage, exposure_corrected_spread, identifiable_sh_degree, measure_view_dependence, parse_overrides, plan_effects, sh_degree_for_spread, shared_triangulation
 from gsgs_engine.io.scene import Scene, View
-from gsgs_engine.pipeline import PriorConfig
+from gsgs_engine.priors.config import PriorConfig
 from gsgs_engine.train.trainer import TrainConfig
 
 SIZE = 16
@@ -246,7 +244,7 @@ def _count(monkeypatch, module, name, calls, key):
 
 
 def _train(scene, tmp_path, overrides, prior=AUTO, iters=4):
-    from gsgs_engine.pipeline import run_prior_training
+    from gsgs_engine.reconstruct import run_prior_training
 
     tc0 = TrainConfig(iters=iters, backend="reference", init="points", checkpoint_every=0, densify=False)
     p = plan(scene, prior, overrides, tri=fake_triangulation(len(scene.points)))

@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from gsgs_engine import GsgsError
-from gsgs_engine.pipeline import (PriorConfig, recovered_round_steps, resolve_prior_plan, round_steps,
-                                  run_prior_training)
+from gsgs_engine.priors.config import PriorConfig, resolve_prior_plan
+from gsgs_engine.train.techniques.prior_loop import recovered_round_steps, round_steps
+from gsgs_engine.reconstruct import run_prior_training
 from gsgs_engine.train.schedule import Schedule
 from gsgs_engine.train.trainer import TrainConfig
 from test_trainer import make_scene
@@ -122,7 +123,7 @@ def test_depth_term_is_dropped_when_the_sparse_depth_covers_too_little(tmp_path)
 
 
 def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
-    from gsgs_engine.pipeline import PriorLoop
+    from gsgs_engine.train.techniques.prior_loop import PriorLoop
     from gsgs_engine.priors.warp import project
     from test_trainer import make_trainer
 
@@ -130,7 +131,7 @@ def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
     trainer.setup()
     prior = PriorConfig(prior="warp", num_pseudo=3, rounds=1, depth_reg=False)
     loop = PriorLoop(prior, resolve_prior_plan(prior, 3), tmp_path, log=lambda m: None)
-    loop.install(trainer)
+    trainer.add_technique(loop)
     assert loop.fill_empty  # RGB views: empty pixels are unseen content, not background
     with torch.no_grad():
         renders = [trainer.render(p.camera) for p in loop.pseudo]
@@ -165,7 +166,7 @@ def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
 def test_prior_flags_reach_the_config_and_the_plan():
     import argparse
 
-    from gsgs_engine.pipeline import add_prior_arguments, prior_config_from_args
+    from gsgs_engine.priors.config import add_prior_arguments, prior_config_from_args
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--prior", default="none")

@@ -73,7 +73,7 @@ def test_orbit_interpolation_keeps_pseudo_views_at_the_cameras_distance():
     """Cameras on a circle around the origin, 90 degrees apart: the arc midpoint stays at radius 4
     (a straight line would pass at 4 cos 45 = 2.83) and still looks at the focus."""
     from gsgs_engine.cameras import Camera, look_at
-    from gsgs_engine.pipeline import orbit_focus
+    from gsgs_engine.train.techniques.prior_loop import orbit_focus
     from gsgs_engine.priors.poses import interpolated_pseudo_views
 
     cams = []

@@ -297,7 +297,7 @@ def test_backend_matches_reference(backend):
 
 
 def test_bench_cell_measures_a_row_and_tabulates():
-    from gsgs_engine.render.bench import markdown_table, run_cell
+    from gsgs_engine.bench.rasterizer import markdown_table, run_cell
     row = run_cell("reference", 50, 32, repeats=2, budget_s=60.0, seed=0, threads=None)
     assert {"backend", "gaussians", "width", "height", "forward_ms", "forward_backward_ms", "peak_mb"} <= set(row)
     assert row["gaussians"] == 50 and row["width"] == row["height"] == 32

@@ -136,7 +136,7 @@ def test_bad_arguments_fail_with_one_line(tiny_scene, tmp_path, capsys):
 
 def test_run_train_job_trains_cancels_and_resumes(tiny_scene, tmp_path):
     from gsgs_engine.job import Job
-    from gsgs_engine.job_command import run as run_job
+    from gsgs_engine.commands.run_job import run as run_job
     from gsgs_engine.train import checkpoint as ckpt
 
     job = Job.create(tmp_path / "job", "train", data={"path": str(tiny_scene), "format": "blender"},
@@ -171,7 +171,7 @@ def test_job_settings_become_effect_overrides():
 
 def test_job_settings_are_checked(tmp_path):
     from gsgs_engine import GsgsError
-    from gsgs_engine.train.trainer import config_from_settings
+    from gsgs_engine.reconstruct import config_from_settings
 
     cfg = config_from_settings({"iters": "50", "backend": "reference", "max_gaussians": 1000})
     assert cfg.iters == 50 and cfg.backend == "reference" and cfg.densify_config.max_gaussians == 1000

@@ -74,7 +74,8 @@ def training_tensors(trainer) -> dict[str, torch.Tensor]:
         found[f"stats.{key}"] = getattr(trainer.stats, key)
     found.update({f"target.{i}": t for i, t in enumerate(trainer._targets)})
     found.update({f"alpha.{i}": a for i, a in enumerate(trainer._alphas) if a is not None})
-    found.update({f"pseudo_target.{i}": t for i, t in enumerate(trainer._pseudo_targets)})
+    pseudo = trainer.technique("pseudo_views")
+    found.update({f"pseudo_target.{i}": t for i, t in enumerate(pseudo._targets if pseudo else [])})
     found["background"] = trainer.background
     rng = trainer.torch_gen.get_state()
     found["step_background"] = trainer._step_background()
@@ -104,7 +105,9 @@ def test_training_runs_on_the_resolved_device(device, tmp_path):
     from gsgs_engine.gaussians import GaussianModel
     from gsgs_engine.io.ply import read_gaussian_ply
     from gsgs_engine.train import checkpoint as ckpt
-    from gsgs_engine.train.trainer import PseudoView, Trainer, train_and_export
+    from gsgs_engine.reconstruct import train_and_export
+    from gsgs_engine.train.techniques.pseudo_views import PseudoSupervision, PseudoView
+    from gsgs_engine.train.trainer import Trainer
 
     scene = rgba_scene(n_train=2, n_test=1)
     iters = iters_with_densification(30)
@@ -114,7 +117,8 @@ def test_training_runs_on_the_resolved_device(device, tmp_path):
     def setup(trainer):
         seen["trainer"] = trainer
         test_view = scene.test[0]
-        trainer.set_pseudo_views([PseudoView(test_view.camera, test_view.image(), weight=0.5, name="p0")])
+        trainer.add_technique(PseudoSupervision([PseudoView(test_view.camera, test_view.image(), weight=0.5,
+                                                            name="p0")]))
         seen["l1_before"] = mean_train_l1(trainer)
 
     metrics = train_and_export(scene, cfg, tmp_path / "out", tmp_path / "ckpt", setup_trainer=setup)
@@ -157,7 +161,7 @@ def test_training_runs_on_the_resolved_device(device, tmp_path):
     resumed = Trainer(scene, config("cpu", iters=iters, checkpoint_every=20, random_background=True),
                       checkpoint_dir=tmp_path / "ckpt")
     resumed.setup(resume=True)
-    resumed.set_pseudo_views(trainer.pseudo_views)
+    resumed.add_technique(PseudoSupervision(trainer.technique("pseudo_views").views))
     assert resumed.device == torch.device("cpu") and resumed.step == steps[0]
     assert resumed.config.backend == cpu_backend()  # this run's choice, not the checkpoint's
     assert resumed.model.num_gaussians == len(resumed.stats.grad_accum)
@@ -230,8 +234,9 @@ def test_4d_training_runs_on_the_resolved_device(device, tmp_path):
 @pytest.mark.parametrize("depth", ["sparse", "tiny-dpt"])
 @pytest.mark.parametrize("device", DEVICES)
 def test_prior_loop_terms_live_on_the_trainers_device(device, depth, tmp_path, monkeypatch):
-    import gsgs_engine.train.trainer as trainer_module
-    from gsgs_engine.pipeline import PriorConfig, run_prior_training
+    import gsgs_engine.reconstruct as reconstruct_module
+    from gsgs_engine.priors.config import PriorConfig
+    from gsgs_engine.reconstruct import run_prior_training
 
     if depth == "sparse":
         import cv2
@@ -243,7 +248,7 @@ def test_prior_loop_terms_live_on_the_trainers_device(device, depth, tmp_path, m
         from gsgs_engine.priors.depth_estimators import save_tiny_dpt
         source = str(save_tiny_dpt(tmp_path / "dpt"))
     seen = {}
-    original = trainer_module.train_and_export
+    original = reconstruct_module.train_and_export
 
     def keep_trainer(*args, setup_trainer=None, **kw):
         def setup(trainer):
@@ -251,7 +256,7 @@ def test_prior_loop_terms_live_on_the_trainers_device(device, depth, tmp_path, m
             setup_trainer(trainer)
         return original(*args, setup_trainer=setup, **kw)
 
-    monkeypatch.setattr(trainer_module, "train_and_export", keep_trainer)
+    monkeypatch.setattr(reconstruct_module, "train_and_export", keep_trainer)
     metrics = run_prior_training(make_scene(n_train=3, n_test=1), config(device, iters=40, sh_degree=0),
                                  PriorConfig(prior="warp", num_pseudo=3, rounds=1, warmup_fraction=0.5,
                                              depth_source=source),
@@ -261,8 +266,9 @@ def test_prior_loop_terms_live_on_the_trainers_device(device, depth, tmp_path, m
     assert "pseudo_l1" in metrics["final_losses"] and "depth_reg" in metrics["final_losses"]
     assert np.isfinite(metrics["final_losses"]["depth_reg"])
     assert_on(training_tensors(trainer), trainer.device)
-    loop = next(cb.__self__ for cb in trainer.callbacks if getattr(cb, "__name__", "") == "on_step")
-    depth = {f"train_depth.{i}.{j}": t for i, pair in enumerate(loop.train_depth) for j, t in enumerate(pair)}
+    loop = trainer.technique("gsgs_prior")
+    depth = {f"train_depth.{i}.{j}": t for i, pair in enumerate(trainer.technique("depth_regulariser").train_depth)
+             for j, t in enumerate(pair)}
     depth.update({f"pseudo_depth.{i}.{j}": t for i, pair in enumerate(loop.pseudo_depth) for j, t in enumerate(pair)})
     assert depth and loop.pseudo_depth
     assert_on(depth, trainer.device)
@@ -303,7 +309,7 @@ def test_gsgs_train_backend_cuda_without_cuda_stops_before_reading_data(monkeypa
 
 def test_job_with_backend_cuda_without_cuda_fails_clearly(monkeypatch, tmp_path):
     from gsgs_engine.job import Job
-    from gsgs_engine.train.trainer import run_train_job
+    from gsgs_engine.reconstruct import run_train_job
 
     _no_cuda(monkeypatch)
     job = Job.create(tmp_path / "job", "train", data={"path": str(tmp_path / "no_such_scene")},
@@ -323,12 +329,13 @@ def test_backend_cuda_error_names_what_is_really_missing():
 
 # -- (c) the CPU path: deterministic, nothing copied --------------------------------------------------------
 def _cpu_run(scene, seed: int = 7):
-    from gsgs_engine.train.trainer import PseudoView, Trainer
+    from gsgs_engine.train.techniques.pseudo_views import PseudoSupervision, PseudoView
+    from gsgs_engine.train.trainer import Trainer
 
     trainer = Trainer(scene, config("cpu", iters=iters_with_densification(30), seed=seed, random_background=True))
     trainer.setup()
     test_view = scene.test[0]
-    trainer.set_pseudo_views([PseudoView(test_view.camera, test_view.image(), weight=0.5, name="p0")])
+    trainer.add_technique(PseudoSupervision([PseudoView(test_view.camera, test_view.image(), weight=0.5, name="p0")]))
     trainer.train()
     return trainer
 
@@ -352,7 +359,8 @@ def test_moving_to_the_same_device_keeps_the_very_tensors():
 
 
 def test_auto_backend_on_a_machine_without_cuda_trains_on_the_cpu(monkeypatch, tmp_path):
-    from gsgs_engine.train.trainer import TrainConfig, train_and_export
+    from gsgs_engine.train.trainer import TrainConfig
+    from gsgs_engine.reconstruct import train_and_export
 
     _no_cuda(monkeypatch)
     cfg = TrainConfig(iters=3, backend="auto", init="points", sh_degree=0, checkpoint_every=0)

@@ -12,11 +12,29 @@ import torch
 
 from gsgs_engine.cameras import Camera
 from gsgs_engine.io.scene import Scene, View
+from gsgs_engine.train.technique import Technique
 
 SIZE = 32
 
 
+class Probe(Technique):
+    """A technique made of plain functions, for tests: `loss(ctx)` -> tensor | (weight, tensor) | None
+    becomes the term `name`; `after(trainer, step)` runs after every step."""
+
+    def __init__(self, name: str = "probe", loss=None, after=None):
+        self.name, self._loss, self._after = name, loss, after
+
+    def loss_terms(self, ctx):
+        value = self._loss(ctx) if self._loss else None
+        return None if value is None else {self.name: value}
+
+    def after_step(self, trainer, step):
+        if self._after:
+            self._after(trainer, step)
+
+
 # -- stand-ins for modules other engineers are still writing (used only while absent) ---------
+
 def _install_metrics_standin() -> None:
     try:
         import gsgs_engine.metrics  # noqa: F401
@@ -178,9 +196,9 @@ def test_nan_loss_and_nan_gradient_steps_are_skipped():
             return torch.sqrt(x - x)
         return None
 
-    trainer.loss_terms["poison"] = poison
+    trainer.add_technique(Probe("poison", loss=poison))
     snapshots = {}
-    trainer.callbacks.append(lambda t, s: snapshots.__setitem__(s, t.model.means.detach().clone()))
+    trainer.add_technique(Probe("snapshots", after=lambda t, s: snapshots.__setitem__(s, t.model.means.detach().clone())))
     trainer.train(until=2)
     before = trainer.model.means.detach().clone()
     trainer.train(until=3)
@@ -233,20 +251,21 @@ def test_resume_is_deterministic(tmp_path):
 
 
 def test_pseudo_views_add_named_terms():
-    from gsgs_engine.train.trainer import PseudoView
+    from gsgs_engine.train.techniques.pseudo_views import PseudoSupervision, PseudoView
 
     scene = make_scene()
     trainer = make_trainer(scene, iters=4)
     trainer.setup()
     test_view = scene.test[0]
-    trainer.set_pseudo_views([PseudoView(test_view.camera, test_view.image(), weight=0.5, name="p0")])
+    pseudo = trainer.add_technique(PseudoSupervision([PseudoView(test_view.camera, test_view.image(), weight=0.5,
+                                                                 name="p0")]))
     seen = []
-    trainer.loss_terms["probe"] = lambda ctx: seen.append(ctx.pseudo is not None) or None
+    trainer.add_technique(Probe(loss=lambda ctx: seen.append("pseudo" in ctx.shared) or None))
     trainer.train()
     assert seen == [True] * 4
     assert {"l1", "dssim", "pseudo_l1", "pseudo_dssim"} <= set(trainer.last_losses)
     with pytest.raises(Exception, match="pseudo view"):
-        trainer.set_pseudo_views([PseudoView(test_view.camera, np.zeros((5, 5, 3)), name="bad")])
+        pseudo.set_views([PseudoView(test_view.camera, np.zeros((5, 5, 3)), name="bad")])
 
 
 def test_random_background_recomposites_the_target():
@@ -270,7 +289,7 @@ def test_signal_finishes_step_and_checkpoints(tmp_path):
 
     trainer = make_trainer(tmp_path=tmp_path, iters=50, checkpoint_every=0)
     trainer.setup()
-    trainer.callbacks.append(lambda t, s: os.kill(os.getpid(), signal.SIGTERM) if s == 5 else None)
+    trainer.add_technique(Probe(after=lambda t, s: os.kill(os.getpid(), signal.SIGTERM) if s == 5 else None))
     with pytest.raises(TrainingInterrupted) as info:
         trainer.train()
     assert info.value.step == 5 and info.value.exit_code == 143

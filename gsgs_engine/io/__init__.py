@@ -11,7 +11,7 @@ import importlib
 _EXPORTS = {
     "load_scene": "gsgs_engine.io.loader",
     "detect_format": "gsgs_engine.io.loader",
-    "select_train": "gsgs_engine.io.loader",
+    "select_train": "gsgs_engine.io.selection",
     "FORMATS": "gsgs_engine.io.loader",
     "Scene": "gsgs_engine.io.scene",
     "View": "gsgs_engine.io.scene",

@@ -13,6 +13,7 @@ given to load_scene override these values; a missing "split" means "train".
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,13 +22,21 @@ from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
 from gsgs_engine.io.images import check_same_size, image_info, make_view
 from gsgs_engine.io.scene import Scene
+from gsgs_engine.io.selection import check_background, select_train
 from gsgs_engine.job import Job
 
 
-def load_job_scene(path, train_split=None, train_views=None, train_ids=None, resolution_scale=None,
-                   background=None) -> Scene:
-    from gsgs_engine.io.loader import _check_background, load_scene, select_train
+@dataclass
+class SceneSource:
+    """A job whose data names a scene folder: load_scene(path, **arguments) loads it."""
 
+    path: Path
+    arguments: dict
+
+
+def load_job_scene(path, train_split=None, train_views=None, train_ids=None, resolution_scale=None,
+                   background=None) -> Scene | SceneSource:
+    """The job's inline scene, or the scene folder it names (a SceneSource, which load_scene loads)."""
     path = Path(path)
     job = Job.open(path.parent if path.name == "job.json" else path)
     data = job.spec.get("data")
@@ -39,7 +48,7 @@ def load_job_scene(path, train_split=None, train_views=None, train_ids=None, res
         pick(train_ids, "train_ids")
     scale = float(pick(resolution_scale, "resolution_scale") or 1.0)
     bg_value = pick(background, "background")
-    bg = _check_background((1.0, 1.0, 1.0) if bg_value is None else bg_value)
+    bg = check_background((1.0, 1.0, 1.0) if bg_value is None else bg_value)
     source = data.get("source", data.get("path"))
     if "cameras" in data:
         scene = _inline_scene(job, data, scale, bg)
@@ -49,8 +58,9 @@ def load_job_scene(path, train_split=None, train_views=None, train_ids=None, res
     scene_path = _resolve(job.root, source)
     if scene_path.resolve() == job.root.resolve():
         raise GsgsError(f"{where}.source points at the job folder itself; name the scene folder instead")
-    return load_scene(scene_path, format=data.get("format", "auto"), train_split=train_split,
-                      train_views=train_views, train_ids=train_ids, resolution_scale=scale, background=bg)
+    return SceneSource(scene_path, {"format": data.get("format", "auto"), "train_split": train_split,
+                                    "train_views": train_views, "train_ids": train_ids, "resolution_scale": scale,
+                                    "background": bg})
 
 
 def _resolve(root: Path, p) -> Path:

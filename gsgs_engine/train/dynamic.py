@@ -20,7 +20,7 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
-from gsgs_engine.spacetime import SpacetimeModel, render_at
+from gsgs_engine.spacetime import SpacetimeModel, gaussians_at
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import (DensifyConfig, DensifyStats, _replace_param, clone_and_split_rows,
                                        reset_opacity)
@@ -149,8 +149,6 @@ class SpacetimeTrainer(Trainer):
                             "train a 3D model (gsgs train) instead")
         super().__init__(scene, config, *args, **kwargs)
         views_by_frame(self.train_views)  # every training view must carry a time
-        self._step_renders: list = []
-        self.loss_terms["_capture_renders"] = self._capture_renders  # returns None: adds no loss
         self._pending_state: dict | None = None
 
     # -- model, optimiser, rendering ------------------------------------------------------------
@@ -194,18 +192,14 @@ class SpacetimeTrainer(Trainer):
         finally:
             self._pending_state = None
 
-    def render(self, camera, background: torch.Tensor | None = None, sh_degree: int | None = None):
-        """Render at camera.time (training, pseudo and test views alike)."""
-        return render_at(self.model, camera, self.background if background is None else background,
-                         self.config.backend, sh_degree)
+    def gaussians_for(self, camera, sh_degree: int | None = None) -> dict:
+        """The model at camera.time (training, pseudo and test views alike); see spacetime.render_at."""
+        degree = self.model.active_sh_degree if sh_degree is None else sh_degree
+        means, quats, scales, opacities = gaussians_at(self.model, camera.time)
+        return {"means": means, "quats": quats, "scales": scales, "opacities": opacities,
+                "sh": self.model.sh(degree), "sh_degree": degree}
 
     # -- the step: base loop without its 3D densification, then the 4D one ---------------------------
-    def _capture_renders(self, ctx) -> None:
-        self._step_renders = [(ctx.render, self.train_views[ctx.view_index].camera)]
-        if ctx.pseudo_render is not None:
-            self._step_renders.append((ctx.pseudo_render, ctx.pseudo.camera))
-        return None
-
     def train_step(self) -> bool:
         cfg, sched = self.config, self.schedule
         step = self.step + 1
@@ -215,7 +209,7 @@ class SpacetimeTrainer(Trainer):
             ok = super().train_step()
         finally:
             cfg.densify = densify
-        renders, self._step_renders = self._step_renders, []
+        renders = self.last_step_renders
         if not (ok and densify and step <= sched.densify_until):
             return ok
         t0 = time.perf_counter()

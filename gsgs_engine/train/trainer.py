@@ -1,13 +1,10 @@
-"""3DGS training from sparse views: the loop, NaN safety, checkpoints, signals and the job entry.
+"""3DGS optimisation: the step loop, NaN safety, densification, checkpoints and signals.
 
-Extension points for the generative prior (Alg. 1):
-- `Trainer.set_pseudo_views([...])` replaces the pseudo views (camera + target + weight)
-  between rounds; a pseudo view is rendered every `pseudo_every` steps and adds the
-  "pseudo_l1" / "pseudo_dssim" terms of eq. 11;
-- `Trainer.loss_terms[name] = fn(ctx) -> tensor | (weight, tensor) | None` adds a named term
-  (e.g. the depth regulariser, eq. 10) that sees this step's renders;
-- `Trainer.callbacks.append(fn(trainer, step))` runs after every optimiser step;
-- `Trainer.train(until=k)` trains up to step k, so a pipeline can interleave rounds.
+The trainer knows optimisation only. Sparse-view techniques (pseudo views, the GS-GS prior
+loop, the depth regulariser, ...) take part through `gsgs_engine.train.technique.Technique`,
+added with `Trainer.add_technique`; the trainer names none of them. `Trainer.train(until=k)`
+trains up to step k. Orchestration (effect plan, initialisation, techniques, export,
+evaluation) is `gsgs_engine.reconstruct`.
 """
 
 from __future__ import annotations
@@ -28,6 +25,7 @@ from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cam
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_prune, reset_opacity
 from gsgs_engine.train.losses import photometric_terms, total_loss
+from gsgs_engine.train.technique import StepContext, Technique
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
 # Measured on lego_200 (8 views, 200 px, cpu backend, SfM init, OMP_WAIT_POLICY=PASSIVE) on the
@@ -50,7 +48,6 @@ class TrainConfig:
     min_init_points: int = 100
     random_init_points: int = 5000
     densify: bool = True
-    pseudo_every: int = 1
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
 
@@ -64,33 +61,6 @@ class TrainConfig:
         dc = DensifyConfig(**d.pop("densify_config", {}))
         known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
         return cls(lr=lr, densify_config=dc, **known)
-
-
-@dataclass
-class PseudoView:
-    """An extra supervised view: a camera, a target image [H, W, 3] in [0, 1] and a loss weight."""
-
-    camera: Camera
-    image: np.ndarray | torch.Tensor
-    weight: float = 1.0
-    name: str = ""
-    nearest_train: int | None = None  # index into the trainer's training views
-    mask: np.ndarray | torch.Tensor | None = None  # (H, W): the pixels the target is trusted on (None: all)
-    extra: dict = field(default_factory=dict)
-
-
-@dataclass
-class StepContext:
-    """What a loss term or callback may look at in the current step."""
-
-    trainer: "Trainer"
-    step: int
-    view_index: int
-    render: Any  # RenderOutput of the training view
-    target: torch.Tensor
-    background: torch.Tensor
-    pseudo: PseudoView | None = None
-    pseudo_render: Any = None
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -135,13 +105,6 @@ def resolve_device(backend: str) -> tuple[torch.device, str]:
                             "a CUDA build of torch and gsplat installed (pip install gsplat), or leave the backend "
                             "to --backend auto (which uses the CPU here)")
     return torch.device("cpu"), "cpu"
-
-
-def _as_image_tensor(img) -> torch.Tensor:
-    t = torch.as_tensor(np.asarray(img, dtype=np.float32) if not torch.is_tensor(img) else img).float()
-    if t.ndim != 3 or t.shape[2] != 3:
-        raise GsgsError(f"a target image must be H x W x 3, got shape {tuple(t.shape)}")
-    return t
 
 
 def render_model(model: GaussianModel, camera: Camera, background: torch.Tensor, backend: str = "auto",
@@ -233,11 +196,9 @@ class Trainer:
         # Every training tensor (model, Adam state, targets, statistics) lives on this device.
         self.device, self.device_description = resolve_device(config.backend)
         self.background = torch.as_tensor(np.asarray(scene.background, dtype=np.float32)).to(self.device)
-        self.loss_terms: dict[str, Callable[[StepContext], Any]] = {}
-        self.callbacks: list[Callable[["Trainer", int], None]] = []
-        self.pseudo_views: list[PseudoView] = []
-        self._pseudo_targets: list[torch.Tensor] = []
-        self._pseudo_masks: list[torch.Tensor | None] = []
+        self.techniques: list[Technique] = []
+        self.last_step_renders: list = []  # (render, camera) of the last step's supervised renders
+        self._technique_states: dict[str, dict] = {}  # restored from a checkpoint, handed over at add_technique
         self.phase_seconds: dict[str, float] = {"init": 0.0, "render": 0.0, "backward": 0.0, "optimise": 0.0,
                                                 "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
         self.step = 0
@@ -317,27 +278,51 @@ class Trainer:
         ]
         return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
 
-    # -- pseudo views (the prior's hook) ------------------------------------------------------
-    def set_pseudo_views(self, views: list[PseudoView]) -> None:
-        """Replace all pseudo views (called between rounds of Alg. 1)."""
-        targets = []
-        for pv in views:
-            t = _as_image_tensor(pv.image)
-            if (t.shape[1], t.shape[0]) != (pv.camera.width, pv.camera.height):
-                raise GsgsError(f"pseudo view {pv.name!r}: image is {t.shape[1]}x{t.shape[0]} but its camera is "
-                                f"{pv.camera.width}x{pv.camera.height}")
-            targets.append(t.to(self.device))
-            if pv.mask is not None and tuple(pv.mask.shape) != tuple(t.shape[:2]):
-                raise GsgsError(f"pseudo view {pv.name!r}: mask is {tuple(pv.mask.shape)}, image {tuple(t.shape[:2])}")
-        self.pseudo_views = list(views)
-        self._pseudo_targets = targets
-        self._pseudo_masks = [None if pv.mask is None else torch.as_tensor(pv.mask).to(self.device, torch.float32)
-                              for pv in views]
+    # -- techniques ---------------------------------------------------------------------------------
+    def add_technique(self, technique: Technique) -> Technique:
+        """Let `technique` take part in training (see gsgs_engine.train.technique); call after setup()."""
+        if self.model is None:
+            raise GsgsError("add a technique after Trainer.setup(): it may need the model")
+        if any(t.name == technique.name for t in self.techniques):
+            raise GsgsError(f"technique {technique.name!r} is already installed")
+        self.techniques.append(technique)
+        technique.install(self)
+        saved = self._technique_states.pop(technique.name, None)
+        if saved is not None:
+            technique.load_state_dict(saved)
+        return technique
+
+    def technique(self, name: str) -> Technique | None:
+        return next((t for t in self.techniques if t.name == name), None)
 
     # -- rendering ------------------------------------------------------------------------------
+    def gaussians_for(self, camera: Camera, sh_degree: int | None = None) -> dict:
+        """The rasteriser's inputs for `camera` (a 4D trainer evaluates its model at camera.time)."""
+        degree = self.model.active_sh_degree if sh_degree is None else sh_degree
+        m = self.model
+        return {"means": m.means, "quats": m.quats, "scales": m.scales, "opacities": m.opacities,
+                "sh": m.sh(degree), "sh_degree": degree}
+
     def render(self, camera: Camera, background: torch.Tensor | None = None, sh_degree: int | None = None):
-        return render_model(self.model, camera, self.background if background is None else background,
-                            self.config.backend, sh_degree)
+        """Render the model as it is (evaluation, pseudo-view generation): no technique changes it."""
+        from gsgs_engine.render import render
+
+        inputs = self.gaussians_for(camera, sh_degree)
+        return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
+                      sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
+                      backend=self.config.backend)
+
+    def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None):
+        """A supervised render of this step: the techniques' `render_inputs` hooks may rewrite its inputs."""
+        from gsgs_engine.render import render
+
+        inputs = self.gaussians_for(camera)
+        if ctx is not None:
+            for t in self.techniques:
+                inputs = t.render_inputs(ctx, inputs)
+        return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
+                      sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
+                      backend=self.config.backend)
 
     # -- the loop -------------------------------------------------------------------------------
     def _next_view(self) -> int:
@@ -371,29 +356,26 @@ class Trainer:
         if sched.is_sh_raise_step(step):
             model.raise_sh_degree()
 
+        for t in self.techniques:
+            t.before_step(self, step)
         t0 = time.perf_counter()
         i = self._next_view()
         bg = self._step_background()
         target = self._target(i, bg)
-        out = self.render(self.train_views[i].camera, bg)
+        camera = self.train_views[i].camera
+        ctx = StepContext(self, step, i, None, target, bg)
+        out = self.render_for_training(ctx, camera, bg)
+        ctx.render = out
+        ctx.renders.append((out, camera))
         self.backend_used = getattr(out, "backend", self.config.backend)
         terms = photometric_terms(out.color, target, cfg.lambda_dssim)
-        ctx = StepContext(self, step, i, out, target, bg)
-        renders = [(out, self.train_views[i].camera)]
-        if self.pseudo_views and step % max(cfg.pseudo_every, 1) == 0:
-            j = int(self.np_rng.integers(len(self.pseudo_views)))
-            pv = self.pseudo_views[j]
-            p_out = self.render(pv.camera)  # a pseudo target has the scene background baked in
-            terms.update(photometric_terms(p_out.color, self._pseudo_targets[j], cfg.lambda_dssim,
-                                           weight=pv.weight, prefix="pseudo_", mask=self._pseudo_masks[j]))
-            ctx.pseudo, ctx.pseudo_render = pv, p_out
-            renders.append((p_out, pv.camera))
-        for name, fn in self.loss_terms.items():
-            value = fn(ctx)
-            if value is None:
-                continue
-            terms[name] = value if isinstance(value, tuple) else (1.0, value)
+        for t in self.techniques:
+            for name, value in (t.loss_terms(ctx) or {}).items():
+                if name in terms:
+                    raise GsgsError(f"technique {t.name!r} adds loss term {name!r}, which another term already has")
+                terms[name] = value if isinstance(value, tuple) else (1.0, value)
         loss = total_loss(terms)
+        self.last_step_renders = ctx.renders
         t1 = time.perf_counter()
         self.phase_seconds["render"] += t1 - t0
 
@@ -414,7 +396,7 @@ class Trainer:
 
         densifying = cfg.densify and step <= sched.densify_until
         if densifying:
-            for r, cam in renders:
+            for r, cam in ctx.renders:
                 grad = r.means2d.grad if getattr(r, "means2d", None) is not None else None
                 self.stats.accumulate(grad, r.radii.detach(), cam.width, cam.height)
         self.optimizer.step()
@@ -440,8 +422,8 @@ class Trainer:
 
         self.last_losses = {"loss": float(loss.detach()), **{k: float(v.detach()) for k, (_, v) in terms.items()}}
         self.step = step
-        for cb in self.callbacks:
-            cb(self, step)
+        for t in self.techniques:
+            t.after_step(self, step)
         return True
 
     def _on_signal(self, signum, frame) -> None:
@@ -486,7 +468,8 @@ class Trainer:
                         "torch": torch.get_rng_state(), "order": list(self._order)},
                 "nan_steps_skipped": self.nan_steps_skipped, "train_seconds": self.train_seconds,
                 "opacity_resets": self.opacity_resets, "size_extent": self.size_extent,
-                "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log}
+                "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log,
+                "techniques": {t.name: t.state_dict() for t in self.techniques}}
 
     def save_checkpoint(self) -> Path | None:
         if self.checkpoint_dir is None:
@@ -534,118 +517,7 @@ class Trainer:
         for k, v in state["phase_seconds"].items():
             self.phase_seconds[k] = self.phase_seconds.get(k, 0.0) + float(v) if k == "init" else float(v)
         self.densify_log = list(state.get("densify_log", []))
-
-
-# -- one whole run: train, export, evaluate -----------------------------------------------------
-def _append_log(path: Path | None, message: str) -> None:
-    if path is None:
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as fh:
-        fh.write(time.strftime("%Y-%m-%d %H:%M:%S ") + message + "\n")
-
-
-def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: Path, job=None,
-                     resume: bool = False, plan: dict | None = None, stream=None,
-                     setup_trainer: Callable[[Trainer], None] | None = None) -> dict:
-    """Train on `scene`, then write point_cloud.ply, renders/ of the test views and metrics.json.
-
-    `job` (a gsgs_engine.job.Job, possibly only a folder without job.json) receives
-    progress events and is polled for cancellation. Raises TrainingInterrupted /
-    TrainingCancelled after saving a checkpoint. Returns the metrics dict.
-    """
-    from gsgs_engine.io.ply import write_gaussian_ply
-    from gsgs_engine.job import write_json_atomic
-    from gsgs_engine.progress import Progress
-    from gsgs_engine.train.evaluate import evaluate_views
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    log_path = job.log_path if job is not None else out_dir / "log.txt"
-    progress = Progress("train", config.iters, job=job, stream=stream)
-
-    def log(message: str) -> None:
-        progress.message(message)
-        _append_log(log_path, message)
-
-    # A scene with time gets the 4D (SpacetimeGS-lite) trainer; a static scene never carries temporal params.
-    from gsgs_engine.train.dynamic import make_trainer
-
-    trainer = make_trainer(scene, config, checkpoint_dir=checkpoint_dir,
-                           cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
-    trainer.setup(resume=resume)
-    if setup_trainer is not None:
-        setup_trainer(trainer)
-    progress.total = trainer.config.iters
-    progress.start_step = trainer.step
-    try:
-        trainer.train()
-    finally:
-        progress.close()
-    if trainer.step >= trainer.config.iters and trainer.checkpoint_dir is not None:
-        trainer.save_checkpoint()  # a later --resume finds the run complete and only re-exports
-
-    write_gaussian_ply(out_dir / "point_cloud.ply", trainer.model.to_ply())
-    t0 = time.perf_counter()
-    test_views = scene.test if "test" in scene.splits else []
-    evaluation = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree),
-                                test_views, renders_dir=out_dir / "renders")
-    trainer.phase_seconds["evaluate"] += time.perf_counter() - t0
-    if test_views:
-        log(f"test ({len(test_views)} views): PSNR {evaluation['psnr']:.2f} SSIM {evaluation['ssim']:.4f} "
-            f"LPIPS {evaluation['lpips'] if evaluation['lpips'] is not None else 'n/a'}")
-    first = trainer.train_views[0].camera
-    full_plan = {
-        "backend": trainer.backend_used or trainer.config.backend, "backend_requested": trainer.config.backend,
-        "device": trainer.device_description, "prior": "none", "sh_degree": trainer.config.sh_degree,
-        "init": trainer.init_info.to_dict(), "background": [float(x) for x in trainer.background],
-        "random_background": bool(trainer.config.random_background and scene.has_alpha),
-        "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
-        "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
-        "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
-        "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "lambda_dssim": trainer.config.lambda_dssim,
-        "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
-        "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "
-                            f"{trainer.config.densify_config.grad_threshold}",
-        **(plan or {}),
-    }
-    metrics = {
-        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], "lpips": evaluation["lpips"],
-        "lpips_reason": evaluation.get("lpips_reason"),
-        "train_seconds": trainer.train_seconds, "iterations": trainer.step,
-        "num_gaussians": trainer.model.num_gaussians, "nan_steps_skipped": trainer.nan_steps_skipped,
-        "final_losses": trainer.last_losses, "init": trainer.init_info.to_dict(), "plan": full_plan,
-        "phase_seconds": {k: round(v, 3) for k, v in trainer.phase_seconds.items()},
-        "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
-    }
-    if metrics["lpips"] is not None:
-        metrics.pop("lpips_reason")
-    write_json_atomic(out_dir / "metrics.json", metrics)
-    return metrics
-
-
-def config_from_settings(settings: dict) -> TrainConfig:
-    """Job settings (job.json "settings") -> TrainConfig; unknown keys are rejected by name.
-
-    A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
-    from gsgs_engine.job import settings_with_preset
-
-    settings = settings_with_preset(settings)
-    allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-               "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
-               "resolution_scale", "background", "preset", "effects"}
-    unknown = sorted(set(settings) - allowed)
-    if unknown:
-        raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
-    cfg = TrainConfig()
-    for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-                "init", "random_init_points", "densify"):
-        if key in settings:
-            setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
-    if "max_gaussians" in settings:
-        cfg.densify_config.max_gaussians = int(settings["max_gaussians"])
-    validate_config(cfg)
-    return cfg
+        self._technique_states = dict(state.get("techniques", {}))
 
 
 def validate_config(cfg: TrainConfig) -> None:
@@ -657,44 +529,3 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"--checkpoint-every must be >= 0 (got {cfg.checkpoint_every})")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
         raise GsgsError(f"unknown backend {cfg.backend!r}; use auto, reference, cpu or cuda")
-
-
-def run_train_job(job) -> None:
-    """Task "train" / "validate" of a job folder: data and settings from job.json, results in job.result_dir.
-
-    Resumes from job.checkpoint_dir when a checkpoint is there; a cancel request saves a
-    checkpoint and leaves the status "cancelled".
-    """
-    from gsgs_engine.io import load_scene
-
-    data = job.spec.get("data") or {}
-    from gsgs_engine.job import settings_with_preset
-
-    settings = settings_with_preset(job.spec.get("settings") or {})  # a "preset" fills what the job leaves out
-    if "path" not in data:
-        raise GsgsError(f"{job.spec_path}: data.path is missing; name the scene folder to train on")
-    path = Path(data["path"])
-    if not path.is_absolute():
-        path = job.root / path
-    config = config_from_settings(settings)
-    resolve_device(config.backend)  # backend "cuda" without CUDA / gsplat: stop before loading the data
-    background = tuple(settings.get("background", data.get("background", (1.0, 1.0, 1.0))))
-    scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
-                       train_views=data.get("train_views"), train_ids=data.get("train_ids"),
-                       resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background)
-    resume = ckpt.latest_checkpoint(job.checkpoint_dir) is not None
-    plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
-            "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
-            "job": str(job.root)}
-    from gsgs_engine.effect_plan import overrides_from_settings, train_with_effects
-    from gsgs_engine.pipeline import prior_config_from_settings
-
-    try:
-        # the same effect plan as `gsgs train` (SH degree, background, pseudo views, depth, time), printed
-        # to the job log and saved in metrics.json; the job's explicit settings override it
-        train_with_effects(scene, config, prior_config_from_settings(settings), job.result_dir, job.checkpoint_dir,
-                           overrides=overrides_from_settings(settings), job=job, resume=resume, plan=plan,
-                           log=lambda m: _append_log(job.log_path, m), authored_poses=job.spec.get("pseudo_poses"))
-    except TrainingCancelled as exc:
-        job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
-                                    "run the job again to resume")

@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", default="auto", choices=["auto", "cpu", "reference", "cuda"])
     parser.add_argument("--prior", default="none",
                         help="generative prior: none (plain 3DGS, the default), depth, warp, diffusion or auto "
-                             "(see gsgs_engine.pipeline)")
+                             "(see gsgs_engine.priors.config)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale factor, e.g. 0.5")
     parser.add_argument("--sh-degree", type=int, default=None,
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     bg.add_argument("--black-background", dest="background", action="store_const", const="black")
     parser.set_defaults(background="white")
     from gsgs_engine.effect_plan import add_effects_argument
-    from gsgs_engine.pipeline import add_prior_arguments
+    from gsgs_engine.priors.config import add_prior_arguments
     from gsgs_engine.presets import add_preset_argument
 
     add_prior_arguments(parser)
@@ -65,12 +65,12 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine import GsgsError
     from gsgs_engine.io import load_scene
     from gsgs_engine.job import Job
-    from gsgs_engine.train.trainer import (TrainConfig, TrainingCancelled, TrainingInterrupted, resolve_device,
-                                          validate_config)
-
-    from gsgs_engine.effect_plan import overrides_from_args, train_with_effects
-    from gsgs_engine.pipeline import PRIOR_CHOICES, prior_config_from_args
+    from gsgs_engine.effect_plan import overrides_from_args
     from gsgs_engine.presets import apply_preset
+    from gsgs_engine.priors.config import PRIOR_CHOICES, prior_config_from_args
+    from gsgs_engine.reconstruct import train_with_effects
+    from gsgs_engine.train.trainer import (TrainConfig, TrainingCancelled, TrainingInterrupted, resolve_device,
+                                           validate_config)
 
     preset_changed = apply_preset(args, getattr(args, "_parser", None)) if args.preset else {}
     if args.prior not in PRIOR_CHOICES:

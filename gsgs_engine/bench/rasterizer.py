@@ -160,7 +160,7 @@ def _run_cell_subprocess(backend, n, resolution, repeats, budget_s, seed, thread
     # this hard limit catches a single run that is itself far too slow (plus start-up time).
     limit = budget_s * 3 + 60
     try:
-        proc = subprocess.run([sys.executable, "-m", "gsgs_engine.render.bench", "--cell", spec],
+        proc = subprocess.run([sys.executable, "-m", "gsgs_engine.bench.rasterizer", "--cell", spec],
                               capture_output=True, text=True, timeout=limit)
     except subprocess.TimeoutExpired:
         return {**base, "note": f"skipped: over budget (killed after {limit:.0f} s)"}
@@ -250,5 +250,5 @@ def _cell_main(argv: list[str]) -> int:
     return 0
 
 
-if __name__ == "__main__":  # the per-cell worker: python -m gsgs_engine.render.bench --cell JSON
+if __name__ == "__main__":  # the per-cell worker: python -m gsgs_engine.bench.rasterizer --cell JSON
     sys.exit(_cell_main(sys.argv))

@@ -2,7 +2,7 @@
 
 A grid of settings that trade time for accuracy (iterations, resolution scale, pseudo views,
 prior rounds, maximum SH degree, prior on/off, backend). Each cell trains and evaluates in
-its own process (`python -m gsgs_engine.bench_accuracy_cell`), so its peak memory is its
+its own process (`python -m gsgs_engine.bench.accuracy_cell`), so its peak memory is its
 own (os.wait4's ru_maxrss). Results go to DIR/results.jsonl, one cell a line; a cell already
 there with status "ok" is not run again. DIR/accuracy_<scene>.md is the table and
 DIR/accuracy_<scene>.png the plot of PSNR against seconds with the Pareto front marked.
@@ -30,7 +30,7 @@ BASE = {"iters": 1000, "resolution_scale": 1.0, "pseudo_views": 8, "rounds": 2, 
 def grid_cells(name: str) -> list[dict]:
     """The cells of grid `name` ("small" | "full"), or of a JSON file holding a list of cell dicts."""
     from gsgs_engine import GsgsError
-    from gsgs_engine.bench_accuracy_cell import normalise_cell
+    from gsgs_engine.bench.accuracy_cell import normalise_cell
     from gsgs_engine.presets import PRESETS
 
     if name == "prior":  # the prior ablation (issue #5's table): same iterations and seed, one run
@@ -103,7 +103,7 @@ def run_cell_process(data: str, cell: dict, cell_dir: Path, train_views: int | N
     """Run one cell in a child process; returns its record (status ok / error), peak memory from wait4."""
     cell_dir.mkdir(parents=True, exist_ok=True)
     (cell_dir / "cell.json").unlink(missing_ok=True)
-    cmd = [python, "-m", "gsgs_engine.bench_accuracy_cell", str(data), "--out", str(cell_dir),
+    cmd = [python, "-m", "gsgs_engine.bench.accuracy_cell", str(data), "--out", str(cell_dir),
            "--settings", json.dumps(cell), "--format", fmt]
     if train_views is not None:
         cmd += ["--train-views", str(train_views)]
@@ -209,7 +209,7 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
 
 
 def preset_of(cell: dict) -> str:
-    from gsgs_engine.bench_accuracy_cell import normalise_cell
+    from gsgs_engine.bench.accuracy_cell import normalise_cell
     from gsgs_engine.presets import PRESETS
 
     return next((n for n, p in PRESETS.items() if cell_id(normalise_cell(p)) == cell_id(cell)), "")

@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
             from gsgs_engine.sfm import run_sfm_job
             run_sfm_job(job)
         else:  # train and validate both train; validate also evaluates on held-out views
-            from gsgs_engine.train.trainer import run_train_job
+            from gsgs_engine.reconstruct import run_train_job
             run_train_job(job)
     except GsgsError as exc:
         job.set_status("error", str(exc))

@@ -1,6 +1,6 @@
 """One cell of `gsgs bench accuracy`, run in its own process: plan, train, evaluate, report.
 
-`python -m gsgs_engine.bench_accuracy_cell DATA --out DIR --settings JSON` writes DIR/cell.json
+`python -m gsgs_engine.bench.accuracy_cell DATA --out DIR --settings JSON` writes DIR/cell.json
 (the measured numbers) next to the usual training outputs (metrics.json, point_cloud.ply,
 renders/). A cell trained at a reduced resolution is evaluated again on the full-resolution
 test views, so every cell's PSNR compares against the same images.
@@ -83,10 +83,10 @@ def _full_resolution_eval(data: str, fmt: str, train_views, ply_path: Path, back
 
 
 def run_cell(data: str, out: Path, cell: dict, train_views: int | None = None, fmt: str = "auto") -> dict:
-    from gsgs_engine.effect_plan import train_with_effects
+    from gsgs_engine.reconstruct import train_with_effects
     from gsgs_engine.io import load_scene
     from gsgs_engine.job import write_json_atomic
-    from gsgs_engine.pipeline import PriorConfig
+    from gsgs_engine.priors.config import PriorConfig
     from gsgs_engine.train.trainer import TrainConfig, validate_config
 
     cell = normalise_cell(cell)
@@ -126,7 +126,7 @@ def run_cell(data: str, out: Path, cell: dict, train_views: int | None = None, f
 def main(argv: list[str] | None = None) -> int:
     from gsgs_engine import GsgsError
 
-    parser = argparse.ArgumentParser(prog="python -m gsgs_engine.bench_accuracy_cell", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m gsgs_engine.bench.accuracy_cell", description=__doc__)
     parser.add_argument("data")
     parser.add_argument("--out", required=True)
     parser.add_argument("--settings", required=True, help="the cell as JSON (keys: " + ", ".join(CELL_KEYS) + ")")

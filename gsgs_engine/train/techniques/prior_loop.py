@@ -1,99 +1,26 @@
-"""Algorithm 1: warm-up, then rounds of render -> adapt -> generate -> optimise (eq. 5, 11).
+"""The GS-GS prior loop (Alg. 1) as a training technique: rounds of render -> adapt -> generate.
 
-`run_prior_training` wraps the plain trainer (gsgs_engine.train.trainer) with the GS-GS
-prior: pseudo views (priors/poses.py), a generator (warp-inpaint, or diffusion + LoRA with
-the geometry-aware loss), and the depth regulariser (eq. 10) as an extra loss term. Every
-round's pseudo images and depths go to OUT/pseudo/round_k/ (the "dataset evolution").
-`resolve_prior_plan` decides, before training, which of these effects run and why.
+After a warm-up, each round renders every training and pseudo view, adapts the generator
+(diffusion + LoRA with the geometry-aware loss, eq. 4, 6) or warps the training photos
+(the weights-free warp-inpaint generator), and hands the new pseudo images to the
+pseudo-view technique (eq. 11's pseudo terms); with a depth source it also installs the depth
+regulariser (eq. 10) and gives it estimates of the new targets. Every round's pseudo images and
+depths go to OUT/pseudo/round_k/ (the "dataset evolution").
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from gsgs_engine import GsgsError
-
-PRIOR_CHOICES = ("none", "depth", "warp", "diffusion", "auto")
-MIN_DEPTH_COVERAGE = 0.10  # share of training-view pixels a depth source must cover to regularise
-
-
-@dataclass
-class PriorConfig:
-    prior: str = "auto"
-    depth_source: str = "auto"  # auto | none | sparse | a local depth-estimation model folder
-    num_pseudo: int = 16
-    rounds: int = 3
-    warmup_fraction: float = 0.3  # share of the iterations before the first round
-    pseudo_weight: float = 0.5  # loss weight of a pseudo view relative to a real one (eq. 11)
-    lambda_reg: float = 0.1  # weight of L_reg (eq. 10, 11)
-    depth_reg: bool = True
-    geo_loss: bool = True
-    jitter: float = 0.0
-    reach: float = 3.0  # forward-facing rigs: half the pseudo views on a ring of reach x the rig's radius (0 = none)
-    diffusion_model: str | None = None
-    depth_adapter: str | None = None
-    diffusion: dict = field(default_factory=dict)  # DiffusionSettings overrides (steps, strength, ...)
-    device: str = "auto"
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-def diffusion_configured(cfg: PriorConfig) -> bool:
-    return bool(cfg.diffusion_model and cfg.depth_adapter and Path(cfg.diffusion_model).is_dir()
-                and Path(cfg.depth_adapter).is_dir())
-
-
-def resolve_prior_plan(cfg: PriorConfig, num_train_views: int, sparse_points: int | None = None) -> dict:
-    """Which effects run, from the request and what is available; every choice says why."""
-    if cfg.prior not in PRIOR_CHOICES:
-        raise GsgsError(f"--prior {cfg.prior!r}: choose one of {', '.join(PRIOR_CHOICES)}")
-    plan: dict = {"requested": cfg.prior}
-    if cfg.prior == "none":
-        return {**plan, "prior": "none", "generator": None, "depth_source": None, "pseudo_views": 0,
-                "reason": "plain 3DGS requested"}
-    has_diffusion = diffusion_configured(cfg)
-    if cfg.prior == "diffusion" and not has_diffusion:
-        raise GsgsError("--prior diffusion needs local model folders: --diffusion-model (Stable Diffusion 1.5 "
-                        "layout) and --depth-adapter (a depth T2I-Adapter); or use --prior warp / auto")
-    generator = {"depth": None, "warp": "warp-inpaint", "diffusion": "diffusion"}.get(cfg.prior)
-    if cfg.prior == "auto":
-        generator = "diffusion" if has_diffusion else "warp-inpaint"
-        plan["generator_reason"] = ("diffusion weights configured" if has_diffusion
-                                    else "no diffusion weights configured: the weights-free warp-inpaint generator")
-    # depth source: a model folder beats SfM points; none disables the regulariser
-    src = cfg.depth_source
-    if not cfg.depth_reg:
-        depth_source, why = None, "--no-depth-reg"
-    elif src not in ("auto", "none", "sparse"):
-        if not Path(src).is_dir():
-            raise GsgsError(f"--depth-source {src!r}: folder not found; give a local depth-estimation model folder, "
-                            "'sparse', 'none' or 'auto'")
-        depth_source, why = src, "depth-estimation model folder"
-    elif src == "none":
-        depth_source, why = None, "--depth-source none"
-    elif sparse_points is not None and sparse_points < 50:
-        depth_source, why = None, f"no depth model configured and only {sparse_points} SfM points"
-        if cfg.prior == "depth":
-            raise GsgsError("--prior depth needs a depth source: --depth-source MODEL_DIR, or enough SfM points")
-    else:
-        depth_source, why = "sparse", "no depth model configured: SfM points of the training views, image-guided"
-    if cfg.prior == "depth" and depth_source is None:
-        raise GsgsError("--prior depth needs a depth source (--depth-source sparse or a model folder)")
-    pseudo = 0 if generator is None else cfg.num_pseudo
-    return {**plan, "prior": cfg.prior if cfg.prior != "auto" else f"auto:{generator}", "generator": generator,
-            "depth_source": depth_source, "depth_source_reason": why, "pseudo_views": pseudo,
-            "rounds": cfg.rounds if generator else 0, "warmup_fraction": cfg.warmup_fraction,
-            "pseudo_weight": cfg.pseudo_weight, "lambda_reg": cfg.lambda_reg if depth_source else 0.0,
-            "geo_loss": bool(cfg.geo_loss and generator == "diffusion"), "jitter": cfg.jitter,
-            "reach": cfg.reach,
-            "depth_convention": "inverse depth (rendered 1/z vs estimated relative inverse depth)"}
+from gsgs_engine.priors.config import PriorConfig
+from gsgs_engine.train.technique import Technique
+from gsgs_engine.train.techniques.depth_regulariser import DepthRegulariser
+from gsgs_engine.train.techniques.pseudo_views import PseudoSupervision, PseudoView
 
 
 def round_steps(iters: int, warmup_fraction: float, rounds: int) -> list[int]:
@@ -158,7 +85,7 @@ def _same_moment(photos, camera):
 def orbit_focus(cameras) -> np.ndarray | None:
     """The point orbiting cameras look at (their optical axes cross), else None (forward-facing:
     pseudo centres then interpolate on straight lines, which stay between the cameras anyway)."""
-    from gsgs_engine.effect_plan import focus_point
+    from gsgs_engine.cameras import focus_point
 
     if len(cameras) < 2:
         return None
@@ -166,8 +93,10 @@ def orbit_focus(cameras) -> np.ndarray | None:
     return focus if how == "optical axes intersection" else None
 
 
-class PriorLoop:
-    """Installs itself on a Trainer: pseudo views, rounds, and the depth-regulariser loss term."""
+class PriorLoop(Technique):
+    """Alg. 1's rounds; installs the pseudo-view technique and, with a depth source, the depth regulariser."""
+
+    name = "gsgs_prior"
 
     def __init__(self, cfg: PriorConfig, plan: dict, out_dir: Path, log=print):
         self.cfg = cfg
@@ -176,10 +105,10 @@ class PriorLoop:
         self.log = log
         self.rounds_done = 0
         self.round_stats: list[dict] = []
-        self.train_depth: list[tuple[torch.Tensor, torch.Tensor]] = []
-        self.pseudo_depth: list[tuple[torch.Tensor, torch.Tensor]] = []
-        self.estimator = None
-        self.sparse = None
+        self.pseudo_depth: list[tuple[torch.Tensor, torch.Tensor]] = []  # estimates of every pseudo view's target
+        self.depth: DepthRegulariser | None = None
+        self.estimator = None  # a depth-estimation model, when the depth source is one
+        self.supervision: PseudoSupervision | None = None
         self.diffusion = None
         self.pseudo = []
         self.active: list[int] = []  # indices into self.pseudo of the views supervised this round
@@ -218,7 +147,14 @@ class PriorLoop:
                            and not trainer.scene.has_time)
         self.plan["fill_empty"] = self.fill_empty
         t0 = time.perf_counter()
-        self._setup_depth_source(trainer)
+        self.supervision = trainer.add_technique(PseudoSupervision(every=self.cfg.pseudo_every))
+        if self.plan.get("depth_source"):
+            self.depth = trainer.add_technique(DepthRegulariser(
+                self.plan["depth_source"], self.cfg.lambda_reg, self.plan,
+                sparse_points=self.plan.pop("_sparse_points", None), log=self.log))
+            self.estimator = self.depth.estimator  # the diffusion generator conditions on it too
+            if not self.depth.enabled:
+                self.depth = None
         if self.plan["generator"] == "diffusion":
             from gsgs_engine.priors.diffusion import DiffusionPrior, DiffusionSettings
 
@@ -230,77 +166,18 @@ class PriorLoop:
         trainer.phase_seconds.setdefault("prior_render", 0.0)
         trainer.phase_seconds.setdefault("prior_adapt", 0.0)
         trainer.phase_seconds.setdefault("prior_generate", 0.0)
-        if self.plan.get("depth_source"):
-            trainer.loss_terms["depth_reg"] = self.depth_term
-        trainer.callbacks.append(self.on_step)
         self.plan["round_steps"] = self.steps
         # A resumed run past the warm-up regenerates the current round from the restored model.
         if self.pseudo and self.steps and trainer.step >= self.steps[0]:
             self.rounds_done = sum(1 for s in self.steps if s <= trainer.step) - 1
             self.run_round()
 
-    def _setup_depth_source(self, trainer) -> None:
-        src = self.plan.get("depth_source")
-        if not src:
-            return
-        if src == "sparse":
-            from gsgs_engine.priors.sparse_depth import SparseDepthSource
-
-            points = self.plan.pop("_sparse_points", None)
-            if points is None:
-                from gsgs_engine.sfm import triangulate_known_poses
-
-                points, _ = triangulate_known_poses(trainer.train_views)
-            self.sparse = SparseDepthSource(points)
-            self.plan["sparse_points"] = int(len(self.sparse.points))
-        else:
-            from gsgs_engine.priors.depth_estimators import load_depth_estimator
-
-            self.estimator = load_depth_estimator(src, device=str(trainer.device))
-        self.train_depth = [self.estimate(v.camera, trainer._targets[i]) for i, v in enumerate(trainer.train_views)]
-        coverage = float(np.mean([float(m.float().mean()) for _, m in self.train_depth]))
-        self.plan["depth_coverage"] = round(coverage, 4)
-        if coverage < MIN_DEPTH_COVERAGE:
-            # A depth map known on a few scattered pixels constrains nothing and adds noise.
-            self.plan["depth_source_disabled"] = (f"the {src} depth covers {coverage:.1%} of the training views "
-                                                  f"(< {MIN_DEPTH_COVERAGE:.0%})")
-            self.plan["depth_source"] = None
-            self.plan["lambda_reg"] = 0.0
-            self.train_depth = []
-            self.log(f"depth regulariser off: {self.plan['depth_source_disabled']}")
-
-    def estimate(self, camera, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(relative inverse depth, valid mask) of an image at a camera from the configured source,
-        on the trainer's device (the depth sources answer on the CPU)."""
-        if self.sparse is not None:
-            inv, mask = self.sparse.estimate(camera, image)
-        else:
-            inv = self.estimator(image)
-            mask = torch.isfinite(inv)
-        device = self.trainer.device
-        return inv.to(device), mask.to(device)
-
-    # -- eq. 10 as a loss term ------------------------------------------------------------
-    def depth_term(self, ctx):
-        from gsgs_engine.priors.depth_reg import depth_regulariser, inverse_depth
-
-        terms = []
-        inv_t, mask_t = self.train_depth[ctx.view_index]
-        if mask_t.sum() > 16:
-            rendered = inverse_depth(ctx.render.depth, ctx.render.alpha)
-            terms.append(depth_regulariser(rendered, inv_t, mask_t))
-        if ctx.pseudo is not None and self.pseudo_depth:
-            k = next(i for i, pv in enumerate(ctx.trainer.pseudo_views) if pv is ctx.pseudo)
-            inv_p, mask_p = self.pseudo_depth[self.active[k]]
-            if mask_p.sum() > 16:
-                rendered = inverse_depth(ctx.pseudo_render.depth, ctx.pseudo_render.alpha)
-                terms.append(depth_regulariser(rendered, inv_p, mask_p))
-        if not terms:
-            return None
-        return self.cfg.lambda_reg, torch.stack(terms).mean()
+    def report(self) -> dict:
+        return {"generator": self.plan.get("generator"), "pseudo_views": len(self.pseudo),
+                "round_steps": list(getattr(self, "steps", [])), "rounds_done": self.rounds_done}
 
     # -- Alg. 1 rounds ----------------------------------------------------------------------
-    def on_step(self, trainer, step: int) -> None:
+    def after_step(self, trainer, step: int) -> None:
         if self.pseudo and self.rounds_done < len(self.steps) and step >= self.steps[self.rounds_done]:
             self.run_round()
 
@@ -317,8 +194,6 @@ class PriorLoop:
         return photos, renders
 
     def run_round(self) -> None:
-        from gsgs_engine.train.trainer import PseudoView as TrainerPseudoView
-
         tr, k = self.trainer, self.rounds_done
         t0 = time.perf_counter()
         photos, renders = self._render_all()
@@ -330,8 +205,8 @@ class PriorLoop:
         else:
             images = self._warp_round(photos, renders, stats)
         t2 = time.perf_counter()
-        if self.plan.get("depth_source"):
-            self.pseudo_depth = [self.estimate(p.camera, img) for p, img in zip(self.pseudo, images)]
+        if self.depth is not None:
+            self.pseudo_depth = [self.depth.estimate(p.camera, img) for p, img in zip(self.pseudo, images)]
         # A pseudo view the model barely covers carries no surface to supervise: leave it out this round
         # (right after an opacity reset, say); unless empty is unseen content, which the round fills.
         train_cover = float(np.median([float((ph.depth > 0).float().mean()) for ph in photos]))
@@ -341,9 +216,11 @@ class PriorLoop:
         stats["pseudo_views_used"] = int(sum(keep))
         stats["pseudo_views_skipped_low_coverage"] = len(keep) - int(sum(keep))
         self.active = [j for j, k in enumerate(keep) if k]
-        tr.set_pseudo_views([TrainerPseudoView(camera=self.pseudo[j].camera, image=images[j], weight=self.cfg.pseudo_weight,
+        self.supervision.set_views([PseudoView(camera=self.pseudo[j].camera, image=images[j], weight=self.cfg.pseudo_weight,
                                                name=self.pseudo[j].name, nearest_train=self.pseudo[j].nearest_train)
                              for j in self.active])
+        if self.depth is not None:
+            self.depth.set_pseudo_depth([self.pseudo_depth[j] for j in self.active])
         tr.phase_seconds["prior_generate"] += time.perf_counter() - t2
         self._save_round(k, images, renders, stats)
         self.rounds_done += 1
@@ -460,92 +337,3 @@ class PriorLoop:
         cams = [{"name": p.name, "nearest_train": p.nearest_train, "source": p.source, **p.camera.to_dict()}
                 for p in self.pseudo]
         (folder / "round.json").write_text(json.dumps({**stats, "views": cams}, indent=1))
-
-
-def run_prior_training(scene, train_config, prior_config: PriorConfig, out_dir, checkpoint_dir, job=None,
-                       resume: bool = False, plan: dict | None = None, authored_poses: list | None = None,
-                       stream=None) -> dict:
-    """Train with the GS-GS prior (or plainly when the plan says none); returns metrics.json's dict."""
-    from gsgs_engine.train.trainer import train_and_export
-
-    prior_plan = resolve_prior_plan(prior_config, len(scene.train))
-    prior_plan["authored_poses"] = list(authored_poses or [])
-    loop_holder: dict = {}
-
-    def setup(trainer) -> None:
-        if prior_plan["generator"] is None and not prior_plan.get("depth_source"):
-            return
-        if prior_plan.get("depth_source") == "sparse" and trainer.init_info.method in ("sfm", "points") and trainer.step == 0:
-            prior_plan["_sparse_points"] = trainer.model.means.detach().cpu().numpy().copy()
-        loop = PriorLoop(prior_config, prior_plan, Path(out_dir), log=trainer.log)
-        loop.install(trainer)
-        loop_holder["loop"] = loop
-
-    merged = dict(plan or {})
-    metrics = train_and_export(scene, train_config, out_dir, checkpoint_dir, job=job, resume=resume,
-                               plan={**merged, "prior": prior_plan["prior"]}, stream=stream,
-                               setup_trainer=setup)
-    loop = loop_holder.get("loop")
-    prior_plan.pop("_sparse_points", None)
-    prior_plan["authored_poses"] = len(prior_plan["authored_poses"])
-    metrics["plan"]["prior_plan"] = prior_plan
-    if loop is not None:
-        metrics["prior_rounds"] = loop.round_stats
-    from gsgs_engine.job import write_json_atomic
-
-    write_json_atomic(Path(out_dir) / "metrics.json", metrics)
-    return metrics
-
-
-# -- command-line and job settings -----------------------------------------------------------
-def add_prior_arguments(parser) -> None:
-    """The prior's options of `gsgs train` (the switches reproduce the paper's ablation rows)."""
-    g = parser.add_argument_group("generative prior (GS-GS)")
-    g.add_argument("--pseudo-views", type=int, default=PriorConfig.num_pseudo, help="number of pseudo views")
-    g.add_argument("--rounds", type=int, default=PriorConfig.rounds, help="rounds of render -> adapt -> generate")
-    g.add_argument("--warmup-fraction", type=float, default=PriorConfig.warmup_fraction,
-                   help="share of the iterations trained on the real views before the first round")
-    g.add_argument("--pseudo-weight", type=float, default=PriorConfig.pseudo_weight,
-                   help="loss weight of a pseudo view relative to a real one")
-    g.add_argument("--lambda-reg", type=float, default=PriorConfig.lambda_reg, help="weight of the depth term (eq. 10)")
-    g.add_argument("--depth-source", default="auto",
-                   help="auto | none | sparse | a local depth-estimation model folder (DPT layout)")
-    g.add_argument("--no-depth-reg", action="store_true", help="disable the depth regulariser (ablation)")
-    g.add_argument("--no-geo-loss", action="store_true", help="disable the geometry-aware LoRA loss (ablation)")
-    g.add_argument("--pseudo-jitter", type=float, default=0.0, help="relative jitter of the pseudo poses")
-    g.add_argument("--pseudo-reach", type=float, default=PriorConfig.reach,
-                   help="forward-facing rigs: half the pseudo views on a ring of this many rig radii around the "
-                        "cameras, past the rig's edges (0 = all between neighbouring cameras)")
-    g.add_argument("--diffusion-model", default=None, help="local Stable Diffusion 1.5 folder (diffusers layout)")
-    g.add_argument("--depth-adapter", default=None, help="local depth T2I-Adapter folder")
-    g.add_argument("--diffusion-strength", type=float, default=0.6,
-                   help="1.0 = generate from noise; < 1 = start from the partially noised render")
-    g.add_argument("--diffusion-steps", type=int, default=20)
-    g.add_argument("--diffusion-resolution", type=int, default=512)
-    g.add_argument("--lora-steps", type=int, default=50)
-    g.add_argument("--device", default="auto", help="device of the diffusion prior: auto | cpu | cuda")
-
-
-def prior_config_from_args(args) -> PriorConfig:
-    return PriorConfig(prior=args.prior, depth_source=args.depth_source, num_pseudo=args.pseudo_views,
-                       rounds=args.rounds, warmup_fraction=args.warmup_fraction, pseudo_weight=args.pseudo_weight,
-                       lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
-                       jitter=args.pseudo_jitter, reach=args.pseudo_reach, diffusion_model=args.diffusion_model,
-                       depth_adapter=args.depth_adapter, device=args.device,
-                       diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,
-                                  "resolution": args.diffusion_resolution, "lora_steps": args.lora_steps})
-
-
-def prior_config_from_settings(settings: dict) -> PriorConfig:
-    """job.json settings -> PriorConfig (keys named as PriorConfig's fields; unknown keys refused).
-
-    A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
-    from gsgs_engine.job import settings_with_preset
-
-    settings = settings_with_preset(settings)
-    known = set(PriorConfig.__dataclass_fields__)
-    d = {k: v for k, v in (settings.get("prior_settings") or {}).items()}
-    unknown = sorted(set(d) - known)
-    if unknown:
-        raise GsgsError(f"job.json: unknown prior settings {unknown}; known: {sorted(known)}")
-    return PriorConfig(prior=settings.get("prior", "none") or "none", **d)

@@ -1,0 +1,225 @@
+"""One reconstruction, start to end: effect plan -> initialisation -> techniques -> trainer -> export -> evaluation.
+
+Every way of training goes through here: `gsgs train` (commands/train.py), `gsgs run-job`
+and the add-on's jobs (`run_train_job`), and the accuracy benchmark's cells.
+
+- `train_with_effects` plans what to model for the scene (gsgs_engine.effect_plan), prints the
+  plan and trains exactly that;
+- `run_prior_training` resolves the GS-GS prior's plan (gsgs_engine.priors.config) and adds
+  its techniques (gsgs_engine.train.techniques) to the trainer;
+- `train_and_export` runs the trainer (gsgs_engine.train.trainer), writes point_cloud.ply,
+  renders the test views and writes metrics.json.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+from gsgs_engine import GsgsError
+from gsgs_engine.effect_plan import apply_effect_plan, plan_effects, scene_for_plan, shared_triangulation
+from gsgs_engine.job import write_json_atomic
+from gsgs_engine.priors.config import PriorConfig, resolve_prior_plan
+from gsgs_engine.train import checkpoint as ckpt
+from gsgs_engine.train.trainer import TrainConfig, Trainer, TrainingCancelled, resolve_device, validate_config
+
+
+def _append_log(path: Path | None, message: str) -> None:
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as fh:
+        fh.write(time.strftime("%Y-%m-%d %H:%M:%S ") + message + "\n")
+
+
+def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: Path, job=None,
+                     resume: bool = False, plan: dict | None = None, stream=None,
+                     setup_trainer: Callable[[Trainer], None] | None = None) -> dict:
+    """Train on `scene`, then write point_cloud.ply, renders/ of the test views and metrics.json.
+
+    `job` (a gsgs_engine.job.Job, possibly only a folder without job.json) receives
+    progress events and is polled for cancellation. Raises TrainingInterrupted /
+    TrainingCancelled after saving a checkpoint. Returns the metrics dict.
+    """
+    from gsgs_engine.io.ply import write_gaussian_ply
+    from gsgs_engine.progress import Progress
+    from gsgs_engine.train.evaluate import evaluate_views
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log_path = job.log_path if job is not None else out_dir / "log.txt"
+    progress = Progress("train", config.iters, job=job, stream=stream)
+
+    def log(message: str) -> None:
+        progress.message(message)
+        _append_log(log_path, message)
+
+    # A scene with time gets the 4D (SpacetimeGS-lite) trainer; a static scene never carries temporal params.
+    from gsgs_engine.train.dynamic import make_trainer
+
+    trainer = make_trainer(scene, config, checkpoint_dir=checkpoint_dir,
+                           cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
+    trainer.setup(resume=resume)
+    if setup_trainer is not None:  # the orchestration adds the run's techniques here
+        setup_trainer(trainer)
+    progress.total = trainer.config.iters
+    progress.start_step = trainer.step
+    try:
+        trainer.train()
+    finally:
+        progress.close()
+    if trainer.step >= trainer.config.iters and trainer.checkpoint_dir is not None:
+        trainer.save_checkpoint()  # a later --resume finds the run complete and only re-exports
+
+    write_gaussian_ply(out_dir / "point_cloud.ply", trainer.model.to_ply())
+    t0 = time.perf_counter()
+    test_views = scene.test if "test" in scene.splits else []
+    evaluation = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree),
+                                test_views, renders_dir=out_dir / "renders")
+    trainer.phase_seconds["evaluate"] += time.perf_counter() - t0
+    if test_views:
+        log(f"test ({len(test_views)} views): PSNR {evaluation['psnr']:.2f} SSIM {evaluation['ssim']:.4f} "
+            f"LPIPS {evaluation['lpips'] if evaluation['lpips'] is not None else 'n/a'}")
+    first = trainer.train_views[0].camera
+    full_plan = {
+        "backend": trainer.backend_used or trainer.config.backend, "backend_requested": trainer.config.backend,
+        "device": trainer.device_description, "prior": "none", "sh_degree": trainer.config.sh_degree,
+        "init": trainer.init_info.to_dict(), "background": [float(x) for x in trainer.background],
+        "random_background": bool(trainer.config.random_background and scene.has_alpha),
+        "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
+        "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
+        "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
+        "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "lambda_dssim": trainer.config.lambda_dssim,
+        "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
+        "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "
+                            f"{trainer.config.densify_config.grad_threshold}",
+        **(plan or {}),
+    }
+    metrics = {
+        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], "lpips": evaluation["lpips"],
+        "lpips_reason": evaluation.get("lpips_reason"),
+        "train_seconds": trainer.train_seconds, "iterations": trainer.step,
+        "num_gaussians": trainer.model.num_gaussians, "nan_steps_skipped": trainer.nan_steps_skipped,
+        "final_losses": trainer.last_losses, "init": trainer.init_info.to_dict(), "plan": full_plan,
+        "phase_seconds": {k: round(v, 3) for k, v in trainer.phase_seconds.items()},
+        "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
+        "techniques": {t.name: t.report() for t in trainer.techniques},
+    }
+    if metrics["lpips"] is not None:
+        metrics.pop("lpips_reason")
+    write_json_atomic(out_dir / "metrics.json", metrics)
+    return metrics
+
+
+def config_from_settings(settings: dict) -> TrainConfig:
+    """Job settings (job.json "settings") -> TrainConfig; unknown keys are rejected by name.
+
+    A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
+    from gsgs_engine.job import settings_with_preset
+
+    settings = settings_with_preset(settings)
+    allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
+               "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
+               "resolution_scale", "background", "preset", "effects"}
+    unknown = sorted(set(settings) - allowed)
+    if unknown:
+        raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
+    cfg = TrainConfig()
+    for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
+                "init", "random_init_points", "densify"):
+        if key in settings:
+            setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
+    if "max_gaussians" in settings:
+        cfg.densify_config.max_gaussians = int(settings["max_gaussians"])
+    validate_config(cfg)
+    return cfg
+
+
+def run_train_job(job) -> None:
+    """Task "train" / "validate" of a job folder: data and settings from job.json, results in job.result_dir.
+
+    Resumes from job.checkpoint_dir when a checkpoint is there; a cancel request saves a
+    checkpoint and leaves the status "cancelled".
+    """
+    from gsgs_engine.io import load_scene
+
+    data = job.spec.get("data") or {}
+    from gsgs_engine.job import settings_with_preset
+
+    settings = settings_with_preset(job.spec.get("settings") or {})  # a "preset" fills what the job leaves out
+    if "path" not in data:
+        raise GsgsError(f"{job.spec_path}: data.path is missing; name the scene folder to train on")
+    path = Path(data["path"])
+    if not path.is_absolute():
+        path = job.root / path
+    config = config_from_settings(settings)
+    resolve_device(config.backend)  # backend "cuda" without CUDA / gsplat: stop before loading the data
+    background = tuple(settings.get("background", data.get("background", (1.0, 1.0, 1.0))))
+    scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
+                       train_views=data.get("train_views"), train_ids=data.get("train_ids"),
+                       resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background)
+    resume = ckpt.latest_checkpoint(job.checkpoint_dir) is not None
+    plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
+            "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
+            "job": str(job.root)}
+    from gsgs_engine.effect_plan import overrides_from_settings
+    from gsgs_engine.priors.config import prior_config_from_settings
+
+    try:
+        # the same effect plan as `gsgs train` (SH degree, background, pseudo views, depth, time), printed
+        # to the job log and saved in metrics.json; the job's explicit settings override it
+        train_with_effects(scene, config, prior_config_from_settings(settings), job.result_dir, job.checkpoint_dir,
+                           overrides=overrides_from_settings(settings), job=job, resume=resume, plan=plan,
+                           log=lambda m: _append_log(job.log_path, m), authored_poses=job.spec.get("pseudo_poses"))
+    except TrainingCancelled as exc:
+        job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
+                                    "run the job again to resume")
+
+
+def run_prior_training(scene, train_config, prior_config: PriorConfig, out_dir, checkpoint_dir, job=None,
+                       resume: bool = False, plan: dict | None = None, authored_poses: list | None = None,
+                       stream=None) -> dict:
+    """Train with the GS-GS prior (or plainly when the plan says none); returns metrics.json's dict."""
+    prior_plan = resolve_prior_plan(prior_config, len(scene.train))
+    prior_plan["authored_poses"] = list(authored_poses or [])
+    loop_holder: dict = {}
+
+    def setup(trainer) -> None:
+        if prior_plan["generator"] is None and not prior_plan.get("depth_source"):
+            return
+        if prior_plan.get("depth_source") == "sparse" and trainer.init_info.method in ("sfm", "points") and trainer.step == 0:
+            prior_plan["_sparse_points"] = trainer.model.means.detach().cpu().numpy().copy()
+        from gsgs_engine.train.techniques.prior_loop import PriorLoop
+
+        loop_holder["loop"] = trainer.add_technique(PriorLoop(prior_config, prior_plan, Path(out_dir), log=trainer.log))
+
+    merged = dict(plan or {})
+    metrics = train_and_export(scene, train_config, out_dir, checkpoint_dir, job=job, resume=resume,
+                               plan={**merged, "prior": prior_plan["prior"]}, stream=stream,
+                               setup_trainer=setup)
+    loop = loop_holder.get("loop")
+    prior_plan.pop("_sparse_points", None)
+    prior_plan["authored_poses"] = len(prior_plan["authored_poses"])
+    metrics["plan"]["prior_plan"] = prior_plan
+    if loop is not None:
+        metrics["prior_rounds"] = loop.round_stats
+    write_json_atomic(Path(out_dir) / "metrics.json", metrics)
+    return metrics
+
+
+def train_with_effects(scene, train_config, prior_config, out_dir, checkpoint_dir, overrides: dict | None = None,
+                       job=None, resume: bool = False, plan: dict | None = None, stream=None, log=print,
+                       authored_poses: list | None = None) -> dict:
+    """Plan the effects, print the plan, train what it enables; metrics.json["plan"]["effects"] holds it."""
+    effect_plan = plan_effects(scene, train_config, prior_config, overrides, log=log)
+    log(effect_plan.format())
+    tc, pc = apply_effect_plan(effect_plan, train_config, prior_config)
+    scene = scene_for_plan(scene, effect_plan)
+    merged = {**(plan or {}), "effects": effect_plan.to_dict()}
+    with shared_triangulation(effect_plan, scene.train):
+        metrics = run_prior_training(scene, tc, pc, out_dir, checkpoint_dir, job=job, resume=resume, plan=merged,
+                                     stream=stream, authored_poses=authored_poses)
+    metrics.setdefault("phase_seconds", {})["plan"] = round(effect_plan.seconds, 3)
+    write_json_atomic(Path(out_dir) / "metrics.json", metrics)
+    return metrics

@@ -1,0 +1,91 @@
+"""Supervised pseudo views (eq. 11's pseudo terms): extra cameras with target images.
+
+Every `every` steps one pseudo view, drawn at random, is rendered and compared with its
+target (L1 + D-SSIM, weighted by the view's weight, optionally masked). The GS-GS prior loop
+replaces the views between rounds (`set_views`); anything else may too (a test, a script,
+artist-authored targets).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cameras import Camera
+from gsgs_engine.train.losses import photometric_terms
+from gsgs_engine.train.technique import StepContext, Technique
+
+
+@dataclass
+class PseudoView:
+    """An extra supervised view: a camera, a target image [H, W, 3] in [0, 1] and a loss weight."""
+
+    camera: Camera
+    image: np.ndarray | torch.Tensor
+    weight: float = 1.0
+    name: str = ""
+    nearest_train: int | None = None  # index into the trainer's training views
+    mask: np.ndarray | torch.Tensor | None = None  # (H, W): the pixels the target is trusted on (None: all)
+    extra: dict = field(default_factory=dict)
+
+
+def _as_image_tensor(img) -> torch.Tensor:
+    t = torch.as_tensor(np.asarray(img, dtype=np.float32) if not torch.is_tensor(img) else img).float()
+    if t.ndim != 3 or t.shape[2] != 3:
+        raise GsgsError(f"a target image must be H x W x 3, got shape {tuple(t.shape)}")
+    return t
+
+
+class PseudoSupervision(Technique):
+    """Renders one pseudo view every `every` steps and adds its photometric terms ("pseudo_l1", "pseudo_dssim")."""
+
+    name = "pseudo_views"
+
+    def __init__(self, views: list[PseudoView] | None = None, every: int = 1):
+        self.every = max(int(every), 1)
+        self.views: list[PseudoView] = []
+        self._targets: list[torch.Tensor] = []
+        self._masks: list[torch.Tensor | None] = []
+        self._pending = list(views or [])
+        self.trainer = None
+
+    def install(self, trainer) -> None:
+        self.trainer = trainer
+        if self._pending:
+            self.set_views(self._pending)
+            self._pending = []
+
+    def set_views(self, views: list[PseudoView]) -> None:
+        """Replace all pseudo views (called between rounds of Alg. 1)."""
+        device = self.trainer.device
+        targets = []
+        for pv in views:
+            t = _as_image_tensor(pv.image)
+            if (t.shape[1], t.shape[0]) != (pv.camera.width, pv.camera.height):
+                raise GsgsError(f"pseudo view {pv.name!r}: image is {t.shape[1]}x{t.shape[0]} but its camera is "
+                                f"{pv.camera.width}x{pv.camera.height}")
+            targets.append(t.to(device))
+            if pv.mask is not None and tuple(pv.mask.shape) != tuple(t.shape[:2]):
+                raise GsgsError(f"pseudo view {pv.name!r}: mask is {tuple(pv.mask.shape)}, image {tuple(t.shape[:2])}")
+        self.views = list(views)
+        self._targets = targets
+        self._masks = [None if pv.mask is None else torch.as_tensor(pv.mask).to(device, torch.float32)
+                       for pv in views]
+
+    def loss_terms(self, ctx: StepContext) -> dict | None:
+        if not self.views or ctx.step % self.every != 0:
+            return None
+        tr = ctx.trainer
+        j = int(tr.np_rng.integers(len(self.views)))
+        pv = self.views[j]
+        out = tr.render_for_training(ctx, pv.camera)  # a pseudo target has the scene background baked in
+        ctx.renders.append((out, pv.camera))
+        ctx.shared["pseudo"] = (j, pv, out)
+        return photometric_terms(out.color, self._targets[j], tr.config.lambda_dssim, weight=pv.weight,
+                                 prefix="pseudo_", mask=self._masks[j])
+
+    def report(self) -> dict:
+        return {"views": len(self.views), "every": self.every}
