@@ -60,6 +60,10 @@ class DensifyStats:
         pad = lambda t: torch.cat([t, torch.zeros(extra, dtype=t.dtype, device=t.device)])  # noqa: E731
         self.grad_accum, self.denom, self.max_radii = pad(self.grad_accum), pad(self.denom), pad(self.max_radii)
 
+    def keep(self, keep: torch.Tensor) -> None:
+        """Follow `keep_gaussians`: drop the statistics of the Gaussians where `keep` is False."""
+        self.grad_accum, self.denom, self.max_radii = self.grad_accum[keep], self.denom[keep], self.max_radii[keep]
+
     def reset(self, n: int) -> None:
         self.__init__(n, self.grad_accum.device)
 
