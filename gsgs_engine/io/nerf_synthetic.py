@@ -15,6 +15,7 @@ from gsgs_engine.io.scene import Scene
 
 NEAR, FAR = 2.0, 6.0  # the NeRF-synthetic convention (the objects sit within radius ~1.5 of the origin)
 _DISTORTION_KEYS = ("k1", "k2", "k3", "p1", "p2")  # nerfstudio / instant-ngp OPENCV keys
+_NUMERIC_KEYS = ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy", "w", "h") + _DISTORTION_KEYS
 _SPLIT_ORDER = {"train": 0, "val": 1, "test": 2}
 
 
@@ -47,6 +48,11 @@ def _frame_camera(meta: dict, frame: dict, image_path: Path, name: str, where: s
         raise GsgsError(f"{where}: transform_matrix is not a 4x4 list of numbers ({exc})") from exc
     if not np.all(np.isfinite(c2w)):
         raise GsgsError(f"{where}: transform_matrix contains NaN or Inf; fix or remove this frame")
+    for key in _NUMERIC_KEYS:
+        value = get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not np.isfinite(value)):
+            raise GsgsError(f"{where}: {key} must be a finite number (got {value!r}); fix the transforms file")
     info = image_info(image_path)
     # Intrinsics refer to w x h when given; photos resized since then scale them proportionally.
     ref_w, ref_h = get("w") or info.width, get("h") or info.height

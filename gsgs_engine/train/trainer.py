@@ -28,13 +28,14 @@ from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cam
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_prune, reset_opacity
 from gsgs_engine.train.losses import photometric_terms, total_loss
+from gsgs_engine.train.nan_guard import check_skipped, nonfinite_cause
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
 # Measured on lego_200 (8 views, 200 px, cpu backend, SfM init, OMP_WAIT_POLICY=PASSIVE) on the
 # shared 2-core dev machine: 1000 steps took 187 s of training (3.5 min wall with SfM and
 # evaluation) and reached test PSNR 22.32 / SSIM 0.847. Well inside the 10-minute budget.
 DEFAULT_ITERS = 1000
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2  # 2: safetensors + JSON (1 was a pickle, never loaded)
 
 
 @dataclass
@@ -242,6 +243,7 @@ class Trainer:
                                                 "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
         self.step = 0
         self.nan_steps_skipped = 0
+        self.nan_causes: dict[str, int] = {}
         self.train_seconds = 0.0
         self.last_losses: dict[str, float] = {}
         self.densify_log: list[dict] = []
@@ -405,11 +407,15 @@ class Trainer:
         self.phase_seconds["backward"] += t2 - t1
         if not ok:
             # never let NaN/Inf reach the parameters or Adam's moments
+            cause = nonfinite_cause(terms, loss, model.params)
+            self.nan_causes[cause] = self.nan_causes.get(cause, 0) + 1
             self.optimizer.zero_grad(set_to_none=True)
             self.nan_steps_skipped += 1
             self.step = step
             self.last_losses = {"loss": float("nan")}
-            self.log(f"step {step}: non-finite loss or gradient, step skipped ({self.nan_steps_skipped} so far)")
+            self.log(f"step {step}: non-finite loss or gradient ({cause}), step skipped "
+                     f"({self.nan_steps_skipped} so far)")
+            check_skipped(self.nan_steps_skipped, step, self.config.iters, self.nan_causes)
             return False
 
         densifying = cfg.densify and step <= sched.densify_until
@@ -486,7 +492,13 @@ class Trainer:
                         "torch": torch.get_rng_state(), "order": list(self._order)},
                 "nan_steps_skipped": self.nan_steps_skipped, "train_seconds": self.train_seconds,
                 "opacity_resets": self.opacity_resets, "size_extent": self.size_extent,
-                "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log}
+                "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log,
+                "scene_fingerprint": self.scene_fingerprint()}
+
+    def scene_fingerprint(self) -> dict:
+        from gsgs_engine.run_folder import scene_fingerprint
+
+        return scene_fingerprint(self.train_views, self._targets)
 
     def save_checkpoint(self) -> Path | None:
         if self.checkpoint_dir is None:
@@ -500,11 +512,14 @@ class Trainer:
         state = ckpt.load_checkpoint(path)
         if state.get("format") != CHECKPOINT_FORMAT:
             raise GsgsError(f"{path}: checkpoint format {state.get('format')!r} is not {CHECKPOINT_FORMAT}; "
-                            "train again without --resume")
+                            f"{ckpt.START_AFRESH}")
         names = [v.name for v in self.train_views]
         if state["train_names"] != names:
             raise GsgsError(f"{path}: this checkpoint was trained on views {state['train_names']}, not {names}; "
                             "resume with the same training views or use a new --out folder")
+        from gsgs_engine.run_folder import check_resume
+
+        check_resume(path, state, self.scene_fingerprint(), self.config.to_dict())
         saved = TrainConfig.from_dict(state["config"])
         if saved.iters != self.config.iters:
             self.log(f"the checkpoint's schedule has {saved.iters} iterations; keeping it (asked: {self.config.iters})")
@@ -629,8 +644,9 @@ def config_from_settings(settings: dict) -> TrainConfig:
 
     A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
     from gsgs_engine.job import settings_with_preset
+    from gsgs_engine.settings_schema import check_settings
 
-    settings = settings_with_preset(settings)
+    settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
                "resolution_scale", "background", "preset", "effects"}
@@ -640,7 +656,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
     cfg = TrainConfig()
     for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                 "init", "random_init_points", "densify"):
-        if key in settings:
+        if key in settings and settings[key] not in (None, "auto"):
             setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
     if "max_gaussians" in settings:
         cfg.densify_config.max_gaussians = int(settings["max_gaussians"])
@@ -667,13 +683,15 @@ def run_train_job(job) -> None:
     """
     from gsgs_engine.io import load_scene
 
-    data = job.spec.get("data") or {}
     from gsgs_engine.job import settings_with_preset
+    from gsgs_engine.settings_schema import check_data, check_settings
 
-    settings = settings_with_preset(job.spec.get("settings") or {})  # a "preset" fills what the job leaves out
-    if "path" not in data:
-        raise GsgsError(f"{job.spec_path}: data.path is missing; name the scene folder to train on")
-    path = Path(data["path"])
+    data = check_data(job.spec.get("data") or {}, f"{job.spec_path} data")
+    settings = check_settings(job.spec.get("settings"), f"{job.spec_path} settings")
+    settings = settings_with_preset(settings)  # a "preset" fills what the job leaves out
+    if not data.get("path", data.get("source")):
+        raise GsgsError(f"{job.spec_path}: data.source is missing; name the scene folder to train on")
+    path = Path(data.get("path", data.get("source")))
     if not path.is_absolute():
         path = job.root / path
     config = config_from_settings(settings)
