@@ -22,8 +22,8 @@ from gsgs_engine import GsgsError
 RESULT_FILES = ("metrics.json", "point_cloud.ply", "progress.jsonl", "eval.json", "log.txt", "status.json")
 RESULT_DIRS = ("checkpoints", "renders", "pseudo")
 # settings a resumed run may choose anew: the schedule length (the checkpoint's wins), where it runs,
-# how often it checkpoints
-RESUME_MAY_DIFFER = ("iters", "backend", "checkpoint_every")
+# how often it checkpoints, and how the (already made) initial model would have been made
+RESUME_MAY_DIFFER = ("iters", "backend", "checkpoint_every", "init", "min_init_points", "random_init_points")
 
 
 def previous_run(out: Path) -> list[str]:

@@ -588,6 +588,9 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
 
     trainer = make_trainer(scene, config, checkpoint_dir=checkpoint_dir,
                            cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
+    from gsgs_engine.io.images import check_decodable
+
+    check_decodable(scene.test if "test" in scene.splits else [])  # a broken test image stops us now, not after training
     trainer.setup(resume=resume)
     if setup_trainer is not None:
         setup_trainer(trainer)
