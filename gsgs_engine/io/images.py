@@ -112,14 +112,15 @@ def decode_image(path: Path) -> np.ndarray:
                         "run this in the gsgs engine's Python, not Blender's") from exc
 
     path = Path(path)
+    if not path.is_file():
+        raise GsgsError(f"{path}: image file is missing; restore it or remove its view from the scene")
     try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise GsgsError(f"{path}: image file is missing; restore it or remove its view from the scene") from None
+        with open(path, "rb") as fh:
+            if fh.read(2) == b"\xff\xd8":  # JPEG (whatever the extension): libjpeg would decode a truncated one
+                check_jpeg_complete(b"\xff\xd8" + fh.read(), path)
     except OSError as exc:
         raise GsgsError(f"{path}: cannot read the image ({exc.strerror or exc}); check the file's permissions") from None
-    check_jpeg_complete(data, path)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise GsgsError(f"{path}: OpenCV cannot decode this image; re-save it as PNG or JPEG")
     if img.dtype == np.uint8:
