@@ -51,8 +51,8 @@ def list_checkpoints(directory: Path) -> list[tuple[int, Path]]:
         if m:
             found.append((int(m.group(1)), entry))
         elif _PICKLED.match(entry.name):
-            raise GsgsError(f"{entry}: a pickled checkpoint (from an older gsgs or another tool); gsgs never loads "
-                            "pickles because opening one can run arbitrary code. Delete the file; to "
+            raise GsgsError(f"{entry}: a pickled checkpoint (from an older gsgs or another tool); it was not loaded "
+                            "(gsgs never unpickles: opening a pickle can run arbitrary code). Delete the file; to "
                             + START_AFRESH)
     return sorted(found)
 
