@@ -75,7 +75,9 @@ def run(args: argparse.Namespace) -> int:
     if len(splats) == 0:
         raise GsgsError(f"{ply_path}: the PLY holds no Gaussians (0 vertices); nothing to evaluate: train again "
                         "or pass another result")
-    model = GaussianModel.from_ply(splats).to(device)
+    from gsgs_engine.io.world_scale import ply_to_internal
+
+    model = GaussianModel.from_ply(ply_to_internal(splats, scene.world_scale)).to(device)
     bg = torch.tensor(background, dtype=torch.float32, device=device)
     result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend), views,
                             renders_dir=Path(args.renders) if args.renders else None)

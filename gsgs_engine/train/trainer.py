@@ -603,7 +603,9 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     if trainer.step >= trainer.config.iters and trainer.checkpoint_dir is not None:
         trainer.save_checkpoint()  # a later --resume finds the run complete and only re-exports
 
-    write_gaussian_ply(out_dir / "point_cloud.ply", trainer.model.to_ply())
+    from gsgs_engine.io.world_scale import ply_to_world
+
+    write_gaussian_ply(out_dir / "point_cloud.ply", ply_to_world(trainer.model.to_ply(), scene.world_scale))
     t0 = time.perf_counter()
     test_views = scene.test if "test" in scene.splits else []
     evaluation = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree),
@@ -621,7 +623,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
         "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
         "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
-        "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "lambda_dssim": trainer.config.lambda_dssim,
+        "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "world_scale": scene.world_scale, "lambda_dssim": trainer.config.lambda_dssim,
         "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
         "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "
                             f"{trainer.config.densify_config.grad_threshold}",
@@ -708,6 +710,7 @@ def run_train_job(job) -> None:
             "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
             "job": str(job.root)}
     from gsgs_engine.effect_plan import overrides_from_settings, train_with_effects
+    from gsgs_engine.io.world_scale import camera_dicts_to_internal
     from gsgs_engine.pipeline import prior_config_from_settings
 
     try:
@@ -715,7 +718,8 @@ def run_train_job(job) -> None:
         # to the job log and saved in metrics.json; the job's explicit settings override it
         train_with_effects(scene, config, prior_config_from_settings(settings), job.result_dir, job.checkpoint_dir,
                            overrides=overrides_from_settings(settings), job=job, resume=resume, plan=plan,
-                           log=lambda m: _append_log(job.log_path, m), authored_poses=job.spec.get("pseudo_poses"))
+                           log=lambda m: _append_log(job.log_path, m),
+                           authored_poses=camera_dicts_to_internal(job.spec.get("pseudo_poses"), scene.world_scale))
     except TrainingCancelled as exc:
         job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
                                     "run the job again to resume")
