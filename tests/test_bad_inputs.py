@@ -540,3 +540,18 @@ def test_the_same_scene_trains_alike_at_any_scale(scene4, tmp_path, capsys):
     # a 1e-4 copy's splats are the original's, 1e-4 as large, in world units
     assert np.median(np.abs(ply[1e-4].positions)) == pytest.approx(1e-4 * np.median(np.abs(ply[1.0].positions)), rel=1e-2)
     assert np.median(ply[1e-4].log_scales) == pytest.approx(np.median(ply[1.0].log_scales) + np.log(1e-4), abs=0.05)
+
+
+def test_pseudo_target_quality_script_errors_are_one_line(scene, tmp_path):
+    from gsgs_engine.io.ply import write_gaussian_ply
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "pseudo_target_quality.py"
+    write_gaussian_ply(tmp_path / "nan.ply", _splats(20, nan=True))
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    for args, expected in (([scene, tmp_path / "nan.ply"], "NaN or Inf"),
+                           ([tmp_path / "nowhere", tmp_path / "nan.ply"], "no such file or folder")):
+        proc = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True,
+                              env=env, timeout=300)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert proc.stderr.strip().splitlines()[-1].startswith("pseudo_target_quality: error:")
+        assert expected in proc.stderr
