@@ -555,3 +555,50 @@ def test_pseudo_target_quality_script_errors_are_one_line(scene, tmp_path):
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert proc.stderr.strip().splitlines()[-1].startswith("pseudo_target_quality: error:")
         assert expected in proc.stderr
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out |= {int(c) for c in (task / "children").read_text().split()}
+        except OSError:
+            pass
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc to see the worker process")
+def test_sigterm_stops_gsgs_sfm_and_its_pycolmap_worker(tmp_path):
+    import time
+
+    import cv2
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.uniform(0, 255, (700, 900, 3)).astype(np.uint8), (0, 0), 2)
+    for i in range(12):  # overlapping crops of one textured image: enough work to be stopped midway
+        cv2.imwrite(str(photos / f"p{i:02d}.png"), base[20:660, 10 + 10 * i:650 + 10 * i])
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "gsgs_engine", "sfm", str(photos), "--out", str(tmp_path / "out")],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        workers: set[int] = set()
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None and not workers:
+            workers = {c for c in _children(proc.pid) if Path(f"/proc/{c}/cmdline").exists()}
+            time.sleep(0.05)
+        if proc.poll() is not None:
+            pytest.skip("sfm finished before it could be interrupted")
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
+    time.sleep(0.2)
+    alive = [w for w in workers if Path(f"/proc/{w}").exists() and
+             "zombie" not in Path(f"/proc/{w}/status").read_text().lower()]
+    assert not alive, f"pycolmap worker(s) {alive} outlived gsgs sfm"
