@@ -302,8 +302,9 @@ def list_photos(photo_dir: Path) -> tuple[list[str], list[str], dict[str, tuple[
         try:
             img = decode_image(path)  # the whole file: a truncated JPEG is refused, not read as grey rows
         except GsgsError as exc:
-            raise GsgsError(f"{exc} (cannot be read as an image: corrupt or not really "
-                            f"{path.suffix.lstrip('.').upper()}; re-export it or move it out of the folder)") from None
+            reason = str(exc).removeprefix(f"{path}: ")
+            raise GsgsError(f"{path}: cannot be read as an image ({reason}; corrupt or not really "
+                            f"{path.suffix.lstrip('.').upper()}); re-export it or move it out of the folder") from None
         if min(img.shape[:2]) < MIN_PHOTO_SIDE:
             raise GsgsError(f"{path}: the photo is {img.shape[1]}x{img.shape[0]} pixels; structure from motion needs "
                             f"at least {MIN_PHOTO_SIDE} pixels on each side to find features: use the full-size photos")

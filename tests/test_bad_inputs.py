@@ -371,7 +371,7 @@ def test_sfm_refuses_a_truncated_jpeg_and_tiny_photos(tmp_path, capsys):
         data = cv2.imencode(".jpg", img)[1].tobytes()
         (photos / f"p{i}.jpg").write_bytes(data if i else data[: len(data) // 2])
     rc, _, err = gsgs(capsys, "sfm", photos, "--out", tmp_path / "out")
-    assert rc == 2 and "p0.jpg: the JPEG is truncated" in error_line(err)
+    assert rc == 2 and "p0.jpg: cannot be read as an image (the JPEG is truncated" in error_line(err)
     tiny = tmp_path / "tiny"
     tiny.mkdir()
     for i in range(3):
