@@ -25,11 +25,11 @@ _FIX = {
 
 
 def describe_os_error(exc: OSError, what: str | None = None) -> str:
-    """'PATH: cannot write WHAT (reason); fix' for an OSError from a write."""
-    path = exc.filename if exc.filename is not None else "?"
+    """'PATH: cannot write WHAT (reason); fix' for an OSError from writing WHAT, else 'PATH: reason; fix'."""
+    path = os.fspath(exc.filename) if exc.filename is not None else "?"
     reason = exc.strerror or str(exc)
     fix = _FIX.get(exc.errno, "check the path and its permissions")
-    return f"{os.fspath(path)}: cannot {'write ' + what if what else 'write or create it'} ({reason}); {fix}"
+    return f"{path}: cannot write {what} ({reason}); {fix}" if what else f"{path}: {reason}; {fix}"
 
 
 @contextlib.contextmanager

@@ -98,7 +98,10 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine.train.checkpoint import latest_checkpoint
 
     claim_run_folder(out, args.resume, args.overwrite, latest_checkpoint(out / "checkpoints") is not None)
-    out.mkdir(parents=True, exist_ok=True)
+    from gsgs_engine.write_errors import writing
+
+    with writing(out, "the output folder (--out)"):
+        out.mkdir(parents=True, exist_ok=True)
     job.set_status("running", f"training {args.data}")
     try:
         background = (1.0, 1.0, 1.0) if args.background == "white" else (0.0, 0.0, 0.0)
