@@ -62,7 +62,7 @@ def claim_run_folder(out: Path, resume: bool, overwrite: bool, has_checkpoint: b
     if overwrite:
         clear_run_outputs(out)
         return
-    why = "--resume found no checkpoint to continue, and it " if resume else "it "
+    why = "--resume found no checkpoint to continue, and the folder " if resume else ""
     raise GsgsError(f"{out}: {why}holds another run ({', '.join(found)}); continue that run with --resume, replace "
                     "it with --overwrite, or choose another --out folder")
 

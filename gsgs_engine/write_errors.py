@@ -38,7 +38,8 @@ def writing(path, what: str):
     try:
         yield
     except OSError as exc:
-        if exc.filename is None or str(exc.filename).startswith(os.path.join(os.path.dirname(os.fspath(path)), ".")):
+        name = os.path.basename(os.fspath(exc.filename)) if exc.filename is not None else ""
+        if exc.filename is None or name.startswith(f".{os.path.basename(os.fspath(path))}."):
             exc.filename = os.fspath(path)  # the temp file of an atomic write: name the real target
         raise GsgsError(describe_os_error(exc, what)) from None
 

@@ -418,7 +418,8 @@ def test_eval_prints_metrics_before_failing_to_write(scene, tmp_path, capsys):
     (out / "eval.json").mkdir()  # eval.json cannot be written (a folder stands there)
     rc, stdout, err = gsgs(capsys, "eval", out, "--data", scene)
     assert "PSNR" in stdout  # the numbers reach the user anyway
-    assert rc == 2 and "eval.json: cannot write eval.json" in error_line(err)
+    line = error_line(err)
+    assert rc == 2 and f"{out / 'eval.json'}: cannot write eval.json (Is a directory)" in line, line
 
 
 def test_interrupt_during_start_up_or_final_evaluation_is_cancelled(scene, tmp_path, capsys, monkeypatch):
