@@ -78,7 +78,12 @@ def _encode(obj, tensors: dict):
     """A JSON-able mirror of `obj`; tensors go to `tensors` and leave a {"__t": key} marker."""
     if isinstance(obj, torch.Tensor):
         key = f"t{len(tensors)}"
-        tensors[key] = obj.detach().cpu().contiguous().clone()  # own storage: safetensors refuses shared buffers
+        t = obj.detach().cpu()
+        whole = t.is_contiguous() and t.storage_offset() == 0 and \
+            t.untyped_storage().nbytes() == t.numel() * t.element_size()
+        tensors[key] = t if whole and not any(t.untyped_storage().data_ptr() == o.untyped_storage().data_ptr()
+                                              for o in tensors.values() if o.numel()) else t.clone()
+        # (a view, or a second reference to one buffer, gets its own copy: safetensors refuses shared memory)
         return {"__t": key}
     if isinstance(obj, bool) or obj is None or isinstance(obj, (int, str)):
         return obj
