@@ -603,3 +603,19 @@ def test_sigterm_stops_gsgs_sfm_and_its_pycolmap_worker(tmp_path):
     alive = [w for w in workers if Path(f"/proc/{w}").exists() and
              "zombie" not in Path(f"/proc/{w}/status").read_text().lower()]
     assert not alive, f"pycolmap worker(s) {alive} outlived gsgs sfm"
+
+
+def test_world_scale_round_trip_covers_4d_motion():
+    from gsgs_engine.io.ply import GaussianPly
+    from gsgs_engine.io.world_scale import MOTION_PREFIX, ply_to_internal, ply_to_world
+    from gsgs_engine.spacetime import PLY_MOTION
+
+    assert all(name.startswith(MOTION_PREFIX) for name in PLY_MOTION)
+    base = _splats(5)
+    g = GaussianPly(base.positions, base.opacity_logits, base.log_scales, base.quats_wxyz, base.sh_dc, base.sh_rest,
+                    extra={PLY_MOTION[0]: np.ones(5, np.float32), "t_center": np.full(5, 0.5, np.float32)})
+    w = ply_to_world(g, 1e-3)
+    assert np.allclose(w.positions, g.positions * 1e-3) and np.allclose(w.extra[PLY_MOTION[0]], 1e-3)
+    assert np.allclose(w.extra["t_center"], 0.5) and np.allclose(w.log_scales, g.log_scales + np.log(1e-3))
+    back = ply_to_internal(w, 1e-3)
+    assert np.allclose(back.positions, g.positions, rtol=1e-6) and np.allclose(back.extra[PLY_MOTION[0]], 1.0)

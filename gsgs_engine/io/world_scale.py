@@ -56,14 +56,15 @@ def normalise_scene(scene):
     return scene
 
 
-def _rescaled_ply(ply, factor: float):
-    from gsgs_engine.spacetime import PLY_MOTION
+MOTION_PREFIX = "motion_"  # gsgs_engine.spacetime.PLY_MOTION: polynomial motion coefficients, lengths per time^k
 
+
+def _rescaled_ply(ply, factor: float):
     if factor == 1.0:
         return ply
     extra = dict(ply.extra)
-    for name in PLY_MOTION:  # polynomial motion coefficients are lengths (per unit of time)
-        if name in extra:
+    for name in extra:
+        if name.startswith(MOTION_PREFIX):
             extra[name] = (np.asarray(extra[name], dtype=np.float64) * factor).astype(extra[name].dtype)
     return replace(ply, positions=(ply.positions.astype(np.float64) * factor).astype(np.float32),
                    log_scales=(ply.log_scales + np.float32(math.log(factor))).astype(np.float32), extra=extra)
