@@ -94,6 +94,11 @@ DIFFUSION = {
     "lora_lr": Rule("float", 0, 1),
     "lambda_geo": Rule("float", 0, 100),
 }
+SFM = {
+    "max_image_size": Rule("int", 64, 20000, flag="--max-image-size"),
+    "camera_model": Rule("str"),  # the choices are gsgs_engine.sfm.CAMERA_MODELS, checked by run_sfm
+    "single_camera": Rule("bool"),
+}
 DATA = {
     "format": Rule("choice", choices=("auto", "blender", "llff", "colmap", "photos", "job")),
     "train_split": Rule("str", allow_none=True),

@@ -243,8 +243,10 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
 def run_sfm_job(job) -> SfmResult:
     """Job task "sfm": job.spec["data"]["photos"] -> COLMAP folder in job.result_dir, plus
     result/cameras.json (Camera.to_dict() + "image") and result/points.ply (xyz + rgb)."""
+    from gsgs_engine.settings_schema import SFM, check_section
+
     data = job.spec.get("data") or {}
-    settings = job.spec.get("settings") or {}
+    settings = check_section(job.spec.get("settings") or {}, SFM, f"{job.spec_path} settings")
     photos = data.get("photos")
     if not photos:
         raise GsgsError(f"{job.spec_path}: data.photos is missing; set it to the folder of photos to reconstruct")

@@ -619,3 +619,17 @@ def test_world_scale_round_trip_covers_4d_motion():
     assert np.allclose(w.extra["t_center"], 0.5) and np.allclose(w.log_scales, g.log_scales + np.log(1e-3))
     back = ply_to_internal(w, 1e-3)
     assert np.allclose(back.positions, g.positions, rtol=1e-6) and np.allclose(back.extra[PLY_MOTION[0]], 1.0)
+
+
+@pytest.mark.parametrize("settings,expected", [({"max_image_size": 1e9}, "max_image_size must be at most 20000"),
+                                               ({"single_camera": "yes"}, "single_camera must be true or false"),
+                                               ([1, 2], "settings must be an object")])
+def test_sfm_job_settings_are_validated(tmp_path, capsys, settings, expected):
+    from gsgs_engine.job import Job
+
+    job = Job.create(tmp_path / "job", "sfm", data={"photos": str(tmp_path)})
+    spec = json.loads(job.spec_path.read_text())
+    spec["settings"] = settings
+    job.spec_path.write_text(json.dumps(spec))
+    rc, _, err = gsgs(capsys, "run-job", job.root)
+    assert rc == 2 and expected in error_line(err)
