@@ -633,3 +633,18 @@ def test_sfm_job_settings_are_validated(tmp_path, capsys, settings, expected):
     job.spec_path.write_text(json.dumps(spec))
     rc, _, err = gsgs(capsys, "run-job", job.root)
     assert rc == 2 and expected in error_line(err)
+
+
+def test_a_job_resumes_only_with_the_settings_it_was_trained_with(scene, tmp_path, capsys):
+    from gsgs_engine.job import Job
+
+    settings = {"iters": 4, "sh_degree": 0, "init": "random", "random_init_points": 200}
+    job = Job.create(tmp_path / "job", "train", data={"path": str(scene)}, settings=settings)
+    assert gsgs(capsys, "run-job", job.root)[0] == 0
+    spec = json.loads(job.spec_path.read_text())
+    spec["settings"]["sh_degree"] = 1  # edited after the run: its checkpoint no longer matches
+    job.spec_path.write_text(json.dumps(spec))
+    rc, _, err = gsgs(capsys, "run-job", job.root)
+    line = error_line(err)
+    assert rc == 2 and "sh_degree: 0 in the checkpoint, 1 now" in line and "delete its checkpoints/ folder" in line
+    assert job.status()["state"] == "error"
