@@ -648,3 +648,21 @@ def test_a_job_resumes_only_with_the_settings_it_was_trained_with(scene, tmp_pat
     line = error_line(err)
     assert rc == 2 and "sh_degree: 0 in the checkpoint, 1 now" in line and "delete its checkpoints/ folder" in line
     assert job.status()["state"] == "error"
+
+
+@pytest.mark.blender
+def test_the_addon_refuses_to_import_nan_splats(tmp_path):
+    bpy = pytest.importorskip("bpy")
+    from gsgs_blender import splat_import
+
+    from gsgs_engine import GsgsError
+    from gsgs_engine.io.ply import write_gaussian_ply
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    write_gaussian_ply(tmp_path / "nan.ply", _splats(10, nan=True))
+    try:
+        with pytest.raises(GsgsError, match="nan.ply: 5 of 10 splats hold NaN or Inf"):
+            splat_import.import_splats(tmp_path / "nan.ply")
+        assert len(bpy.data.objects) == 0 and len(bpy.data.meshes) == 0  # nothing half-imported
+    finally:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
