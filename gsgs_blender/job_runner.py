@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Callable
 
 from gsgs_engine import GsgsError
-from gsgs_engine.job import STATES, Job, ProgressReader, read_status
+from gsgs_engine.job import STATES, Job, ProgressReader, read_status, status_is_stale
 
 CANCEL_GRACE_S = 10.0  # the engine checks cancel.request between steps; then we terminate
 KILL_GRACE_S = 5.0  # after terminate(), kill() if the process still has not exited
@@ -53,6 +53,12 @@ def log_tail(job_dir: str | os.PathLike, lines: int = 15, max_bytes: int = 16384
     except FileNotFoundError:
         return ""
     return "\n".join(text.splitlines()[-lines:])
+
+
+def stopped_unexpectedly(status: dict) -> str:
+    """The message for a "running" status whose process is gone (status_is_stale)."""
+    return (f"stopped unexpectedly: the engine process (pid {status.get('pid')}) is gone without finishing "
+            "(killed or crashed); start the job again to resume from its last checkpoint")
 
 
 def format_losses(losses: dict | None) -> str:
@@ -127,6 +133,8 @@ class JobRun:
             status = read_status(self.job_dir) or {}
             if status.get("state") in FINAL_STATES:
                 self._settle(status.get("state"), status.get("message", ""))
+            elif status_is_stale(status):
+                self._settle("error", stopped_unexpectedly(status))
             return new
         rc = self.process.poll()
         if rc is None:
@@ -247,6 +255,8 @@ def attach(job_dir: str | os.PathLike) -> JobRun:
         status = read_status(key) or {}
         run.state = status.get("state") if status.get("state") in STATES else "unknown"
         run.message = status.get("message", "")
+        if status_is_stale(status):
+            run.state, run.message = "error", stopped_unexpectedly(status)
         run.finished_handled = True  # its result was handled (or is imported on request)
         events = run._reader.poll()
         run.last_event = events[-1] if events else None

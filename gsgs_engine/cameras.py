@@ -330,7 +330,13 @@ def _rotation_from_c2w(m: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarr
     if np.any(norms < 1e-12) or np.linalg.det(rot) <= 0:
         raise GsgsError(f"{source}: the camera matrix is degenerate or mirrored (det {np.linalg.det(rot):.4g}); "
                         "use a proper rotation without negative scale")
-    u, _, vt = np.linalg.svd(rot / norms)  # nearest rotation: files store float32, slightly non-orthogonal
+    unit = rot / norms
+    skew = float(np.abs(unit.T @ unit - np.eye(3)).max())
+    if skew > 1e-3:  # the tolerance Camera.validate gives an inline rotation: float32 rounding, not shear
+        raise GsgsError(f"{source}: the camera matrix is sheared (its axes are {np.degrees(np.arcsin(min(skew, 1))):.1f} "
+                        "degrees from perpendicular); a camera-to-world matrix needs perpendicular axes (scale is "
+                        "removed, shear cannot be): re-export the poses")
+    u, _, vt = np.linalg.svd(unit)  # nearest rotation: files store float32, slightly non-orthogonal
     return u @ vt, m[:3, 3].copy()
 
 

@@ -64,10 +64,16 @@ def main(argv: list[str] | None = None) -> int:
     if run is None:
         parser.print_help()
         return 0 if not argv else 2
+    from gsgs_engine.write_errors import describe_os_error, sigterm_interrupts
+
     try:
-        return int(run(args) or 0)
+        with sigterm_interrupts():  # SIGTERM unwinds like Ctrl-C: status.json says cancelled, workers stop
+            return int(run(args) or 0)
     except GsgsError as exc:
         print(f"gsgs: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a write into a read-only / full / mistyped place (reads check their paths first)
+        print(f"gsgs: error: {describe_os_error(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("gsgs: interrupted", file=sys.stderr)

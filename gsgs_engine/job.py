@@ -12,8 +12,11 @@ Standard library + numpy only: Blender's Python imports this module.
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 import os
+import socket
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -27,21 +30,52 @@ TASKS = ("sfm", "train", "validate")
 STATES = ("running", "ok", "error", "cancelled")
 
 
+def finite_json(obj: Any) -> Any:
+    """`obj` with every NaN / Inf float replaced by None: JSON has no NaN, and a bare `NaN` token makes
+    the file unreadable to strict parsers (browsers, jq, other languages)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):
+        return finite_json(obj.tolist())
+    return obj
+
+
 def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON so a reader never sees a half-written file (temp file + rename)."""
+    """Write JSON so a reader never sees a half-written file (temp file + rename); mode 0644 like every
+    other output (mkstemp would leave 0600); NaN / Inf are written as null (finite_json)."""
+    from gsgs_engine.write_errors import writing
+
     path = Path(path)
+    with writing(path, path.name):
+        _write_json_atomic(path, data)
+
+
+def _write_json_atomic(path: Path, data: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2, sort_keys=False, default=_json_default)
+            json.dump(finite_json(data), fh, indent=2, sort_keys=False, default=_json_default, allow_nan=False)
             fh.flush()
             os.fsync(fh.fileno())
+        os.chmod(tmp, output_file_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+@functools.lru_cache(maxsize=1)
+def output_file_mode() -> int:
+    """0644 less the process umask: the mode an ordinary open() gives, for files made with mkstemp (0600)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o644 & ~mask
 
 
 def _json_default(obj: Any) -> Any:
@@ -131,14 +165,17 @@ class Job:
                  "losses": losses or {}, "eta_s": eta_s, "message": message, **extra}
         self.root.mkdir(parents=True, exist_ok=True)
         with open(self.progress_path, "a") as fh:
-            fh.write(json.dumps(event, default=_json_default) + "\n")
+            fh.write(json.dumps(finite_json(event), default=_json_default, allow_nan=False) + "\n")
             fh.flush()
         return event
 
     def set_status(self, state: str, message: str = "", **extra: Any) -> None:
         if state not in STATES:
             raise ValueError(f"unknown job state {state!r}")
-        write_json_atomic(self.status_path, {"state": state, "message": message, "time": time.time(), **extra})
+        # pid + host: a reader on the same machine can tell a live "running" from one whose process died
+        # (SIGKILL, power loss): see process_alive / status_is_stale
+        write_json_atomic(self.status_path, {"state": state, "message": message, "time": time.time(),
+                                             "pid": os.getpid(), "host": socket.gethostname(), **extra})
 
     def status(self) -> dict | None:
         return read_status(self.root)
@@ -185,6 +222,40 @@ def read_status(root: str | os.PathLike) -> dict | None:
         return None
     except (OSError, json.JSONDecodeError):
         return None  # being replaced right now; the next poll sees it
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` exists on this machine (POSIX kill 0; Windows OpenProcess)."""
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+        return False
+    if os.name == "nt":  # pragma: no cover - exercised on Windows only
+        import ctypes
+
+        handle = ctypes.windll.kernel32.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
+        if not handle:
+            return False
+        code = ctypes.c_ulong()
+        ok = ctypes.windll.kernel32.GetExitCodeProcess(handle, ctypes.byref(code))
+        ctypes.windll.kernel32.CloseHandle(handle)
+        return bool(ok) and code.value == 259  # STILL_ACTIVE
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, owned by someone else
+    return True
+
+
+def status_is_stale(status: dict | None) -> bool:
+    """True when status.json says "running" but the process that wrote it, on this machine, is gone
+    (killed with SIGKILL, a crash, a reboot): the job stopped unexpectedly and will not update again.
+    A job running on another host (a cluster node) is never called stale from here."""
+    if not status or status.get("state") != "running":
+        return False
+    if status.get("host") not in (None, socket.gethostname()) or "pid" not in status:
+        return False
+    return not process_alive(status.get("pid"))
 
 
 class ProgressReader:

@@ -60,6 +60,9 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
 
     trainer = make_trainer(scene, config, checkpoint_dir=checkpoint_dir,
                            cancel_check=job.cancel_requested if job is not None else None, progress=progress, log=log)
+    from gsgs_engine.io.images import check_decodable
+
+    check_decodable(scene.test if "test" in scene.splits else [])  # a broken test image stops us now, not after training
     trainer.setup(resume=resume)
     if setup_trainer is not None:  # the orchestration adds the run's techniques here
         setup_trainer(trainer)
@@ -72,7 +75,9 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     if trainer.step >= trainer.config.iters and trainer.checkpoint_dir is not None:
         trainer.save_checkpoint()  # a later --resume finds the run complete and only re-exports
 
-    write_gaussian_ply(out_dir / "point_cloud.ply", trainer.model.to_ply())
+    from gsgs_engine.io.world_scale import ply_to_world
+
+    write_gaussian_ply(out_dir / "point_cloud.ply", ply_to_world(trainer.model.to_ply(), scene.world_scale))
     t0 = time.perf_counter()
     test_views = scene.test if "test" in scene.splits else []
     evaluation = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree),
@@ -90,7 +95,8 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
         "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
         "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
-        "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "lambda_dssim": trainer.config.lambda_dssim,
+        "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "world_scale": scene.world_scale,
+        "lambda_dssim": trainer.config.lambda_dssim,
         "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
         "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "
                             f"{trainer.config.densify_config.grad_threshold}",
@@ -117,8 +123,9 @@ def config_from_settings(settings: dict) -> TrainConfig:
 
     A "preset" fills the keys the job leaves out (gsgs_engine.job.settings_with_preset)."""
     from gsgs_engine.job import settings_with_preset
+    from gsgs_engine.settings_schema import check_settings
 
-    settings = settings_with_preset(settings)
+    settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
                "resolution_scale", "background", "preset", "effects"}
@@ -128,7 +135,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
     cfg = TrainConfig()
     for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                 "init", "random_init_points", "densify"):
-        if key in settings:
+        if key in settings and settings[key] not in (None, "auto"):
             setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
     if "max_gaussians" in settings:
         cfg.densify_config.max_gaussians = int(settings["max_gaussians"])
@@ -144,13 +151,15 @@ def run_train_job(job) -> None:
     """
     from gsgs_engine.io import load_scene
 
-    data = job.spec.get("data") or {}
     from gsgs_engine.job import settings_with_preset
+    from gsgs_engine.settings_schema import check_data, check_settings
 
-    settings = settings_with_preset(job.spec.get("settings") or {})  # a "preset" fills what the job leaves out
-    if "path" not in data:
-        raise GsgsError(f"{job.spec_path}: data.path is missing; name the scene folder to train on")
-    path = Path(data["path"])
+    data = check_data(job.spec.get("data") or {}, f"{job.spec_path} data")
+    settings = check_settings(job.spec.get("settings"), f"{job.spec_path} settings")
+    settings = settings_with_preset(settings)  # a "preset" fills what the job leaves out
+    if not data.get("path", data.get("source")):
+        raise GsgsError(f"{job.spec_path}: data.source is missing; name the scene folder to train on")
+    path = Path(data.get("path", data.get("source")))
     if not path.is_absolute():
         path = job.root / path
     config = config_from_settings(settings)
@@ -164,6 +173,7 @@ def run_train_job(job) -> None:
             "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
             "job": str(job.root)}
     from gsgs_engine.effect_plan import overrides_from_settings
+    from gsgs_engine.io.world_scale import camera_dicts_to_internal
     from gsgs_engine.priors.config import prior_config_from_settings
 
     try:
@@ -171,7 +181,8 @@ def run_train_job(job) -> None:
         # to the job log and saved in metrics.json; the job's explicit settings override it
         train_with_effects(scene, config, prior_config_from_settings(settings), job.result_dir, job.checkpoint_dir,
                            overrides=overrides_from_settings(settings), job=job, resume=resume, plan=plan,
-                           log=lambda m: _append_log(job.log_path, m), authored_poses=job.spec.get("pseudo_poses"))
+                           log=lambda m: _append_log(job.log_path, m),
+                           authored_poses=camera_dicts_to_internal(job.spec.get("pseudo_poses"), scene.world_scale))
     except TrainingCancelled as exc:
         job.set_status("cancelled", f"cancelled at step {exc.step}; checkpoint {exc.checkpoint}; "
                                     "run the job again to resume")

@@ -243,8 +243,10 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
 def run_sfm_job(job) -> SfmResult:
     """Job task "sfm": job.spec["data"]["photos"] -> COLMAP folder in job.result_dir, plus
     result/cameras.json (Camera.to_dict() + "image") and result/points.ply (xyz + rgb)."""
+    from gsgs_engine.settings_schema import SFM, check_section
+
     data = job.spec.get("data") or {}
-    settings = job.spec.get("settings") or {}
+    settings = check_section(job.spec.get("settings") or {}, SFM, f"{job.spec_path} settings")
     photos = data.get("photos")
     if not photos:
         raise GsgsError(f"{job.spec_path}: data.photos is missing; set it to the folder of photos to reconstruct")
@@ -282,12 +284,15 @@ def run_sfm_job(job) -> SfmResult:
 # ---------------------------------------------------------------------------------------
 # Plain files (numpy only, no pycolmap)
 # ---------------------------------------------------------------------------------------
+MIN_PHOTO_SIDE = 32  # SIFT finds nothing below this; pycolmap crashed (exit -11) on 1x1 photos
+
+
 def list_photos(photo_dir: Path) -> tuple[list[str], list[str], dict[str, tuple[int, int]]]:
     """(image names, skipped non-image names, name -> (width, height)) in a folder; a photo
     that cannot be decoded is an error naming it, since SfM on the rest would lose a view."""
     if not photo_dir.is_dir():
         raise GsgsError(f"{photo_dir}: not a folder; pass the folder that holds the photos")
-    import cv2
+    from gsgs_engine.io.images import decode_image
 
     names, skipped, sizes = [], [], {}
     for path in sorted(photo_dir.iterdir()):
@@ -296,10 +301,15 @@ def list_photos(photo_dir: Path) -> tuple[list[str], list[str], dict[str, tuple[
         if path.suffix.lower() not in IMAGE_EXTENSIONS:
             skipped.append(path.name)
             continue
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None or img.size == 0:
-            raise GsgsError(f"{path}: cannot be read as an image (corrupt or not really "
-                            f"{path.suffix.lstrip('.').upper()}); re-export it or move it out of the folder")
+        try:
+            img = decode_image(path)  # the whole file: a truncated JPEG is refused, not read as grey rows
+        except GsgsError as exc:
+            reason = str(exc).removeprefix(f"{path}: ")
+            raise GsgsError(f"{path}: cannot be read as an image ({reason}; corrupt or not really "
+                            f"{path.suffix.lstrip('.').upper()}); re-export it or move it out of the folder") from None
+        if min(img.shape[:2]) < MIN_PHOTO_SIDE:
+            raise GsgsError(f"{path}: the photo is {img.shape[1]}x{img.shape[0]} pixels; structure from motion needs "
+                            f"at least {MIN_PHOTO_SIDE} pixels on each side to find features: use the full-size photos")
         names.append(path.name)
         sizes[path.name] = (int(img.shape[1]), int(img.shape[0]))
     return names, skipped, sizes

@@ -26,6 +26,18 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit 0 with the table; 2 with one `pseudo_target_quality: error:` line for a bad input."""
+    from gsgs_engine import GsgsError
+
+    try:
+        return _run(argv)
+    except GsgsError as exc:
+        print(f"pseudo_target_quality: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(argv: list[str] | None) -> int:
+    from gsgs_engine import GsgsError
     from gsgs_engine.gaussians import GaussianModel
     from gsgs_engine.io import load_scene
     from gsgs_engine.io.ply import read_gaussian_ply
@@ -39,9 +51,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-test", type=int, default=10, help="test views used, spread over the split")
     parser.add_argument("--backend", default="auto")
     args = parser.parse_args(argv)
+    if args.train_views is not None and args.train_views < 1:
+        raise GsgsError(f"--train-views must be at least 1 (got {args.train_views})")
+    if args.max_test < 1:
+        raise GsgsError(f"--max-test must be at least 1 (got {args.max_test})")
+    from gsgs_engine.io.world_scale import ply_to_internal
 
     scene = load_scene(args.data, train_views=args.train_views)
-    model = GaussianModel.from_ply(read_gaussian_ply(args.ply))
+    splats = read_gaussian_ply(args.ply)  # a NaN / Inf value is an error naming the file
+    if len(splats) == 0:
+        raise GsgsError(f"{args.ply}: the PLY holds no Gaussians; pass a trained result")
+    if not scene.test:
+        raise GsgsError(f"{args.data}: the scene has no test views to measure on")
+    model = GaussianModel.from_ply(ply_to_internal(splats, scene.world_scale))
     background = torch.as_tensor(scene.background, dtype=torch.float32)
     degree = model.max_sh_degree
 
@@ -71,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{view.name:24s} {rows[-1][0]:10.2f} {rows[-1][1]:10.2f}")
     mean = np.mean(rows, axis=0)
     print(f"{'mean':24s} {mean[0]:10.2f} {mean[1]:10.2f}")
+    if not np.isfinite(mean).all():
+        raise GsgsError("a PSNR is not finite (the renders or targets hold NaN); the result is damaged")
     return 0
 
 

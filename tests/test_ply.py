@@ -75,7 +75,7 @@ def test_round_trip_is_bit_exact(tmp_path, degree):
     splats.log_scales[1, 2] = -np.inf
     path = tmp_path / "a.ply"
     write_gaussian_ply(path, splats)
-    back = read_gaussian_ply(path)
+    back = read_gaussian_ply(path, require_finite=False)  # NaN / Inf survive a raw round trip bit for bit
     assert back.sh_degree == degree and len(back) == 257 and back.defaulted == ()
     assert back.extra["motion_0"].dtype == np.float64  # stored dtype kept
     assert_same(splats, back)

@@ -220,7 +220,7 @@ def test_sigterm_then_resume_finishes_the_same_schedule(tiny_scene, tmp_path):
     assert "--resume" in err
     status = json.loads((out / "status.json").read_text())
     assert status["state"] == "cancelled" and "--resume" in status["message"]
-    ckpts = list((out / "checkpoints").glob("ckpt_*.pt"))
+    ckpts = list((out / "checkpoints").glob("ckpt_*.safetensors"))
     assert len(ckpts) == 1
     stopped_at = int(ckpts[0].stem.split("_")[1])
     assert 3 <= stopped_at < 80

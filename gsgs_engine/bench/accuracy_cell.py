@@ -71,7 +71,9 @@ def _full_resolution_eval(data: str, fmt: str, train_views, ply_path: Path, back
 
     scene = load_scene(data, format=fmt, train_views=train_views)
     device, _ = resolve_device(backend)  # the backend renders where the Gaussians live (gsplat: CUDA)
-    model = GaussianModel.from_ply(read_gaussian_ply(ply_path)).to(device)
+    from gsgs_engine.io.world_scale import ply_to_internal
+
+    model = GaussianModel.from_ply(ply_to_internal(read_gaussian_ply(ply_path), scene.world_scale)).to(device)
     bg = torch.as_tensor(scene.background, dtype=torch.float32, device=device)
     deg = model.max_sh_degree
 

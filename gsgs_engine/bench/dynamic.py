@@ -72,7 +72,7 @@ def _subscene(scene, train_idx: list[int], test_idx: list[int]):
     return Scene(views=[scene.views[i] for i in keep],
                  splits={"train": [pos[i] for i in train_idx], "test": [pos[i] for i in test_idx]},
                  source=scene.source, format=scene.format, background=scene.background, near=scene.near,
-                 far=scene.far, has_alpha=scene.has_alpha)
+                 far=scene.far, has_alpha=scene.has_alpha, world_scale=scene.world_scale)
 
 
 def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str) -> dict:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -49,6 +50,9 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine.train.evaluate import evaluate_views
     from gsgs_engine.train.trainer import render_model, resolve_device
 
+    from gsgs_engine.settings_schema import check_args
+
+    check_args(args)
     ply_path = _find_ply(Path(args.result))
     recorded = {}
     metrics_path = ply_path.parent / "metrics.json"
@@ -67,15 +71,29 @@ def run(args: argparse.Namespace) -> int:
     if not views:
         raise GsgsError(f"{args.data}: split {args.split!r} has no views to evaluate")
     device, _ = resolve_device(args.backend)  # the CUDA backend renders Gaussians that live on the GPU
-    model = GaussianModel.from_ply(read_gaussian_ply(ply_path)).to(device)
+    splats = read_gaussian_ply(ply_path)  # NaN / Inf values are refused here, naming the file
+    if len(splats) == 0:
+        raise GsgsError(f"{ply_path}: the PLY holds no Gaussians (0 vertices); nothing to evaluate: train again "
+                        "or pass another result")
+    from gsgs_engine.io.world_scale import ply_to_internal
+
+    model = GaussianModel.from_ply(ply_to_internal(splats, scene.world_scale)).to(device)
     bg = torch.tensor(background, dtype=torch.float32, device=device)
     result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend), views,
                             renders_dir=Path(args.renders) if args.renders else None)
     result.update({"ply": str(ply_path), "data": str(args.data), "split": args.split, "backend": args.backend,
                    "resolution_scale": scale, "background": list(background), "num_gaussians": model.num_gaussians})
+    if not all(math.isfinite(result[k]) for k in ("psnr", "ssim")):
+        raise GsgsError(f"{ply_path}: evaluation gave PSNR {result['psnr']} / SSIM {result['ssim']} (not finite); "
+                        "the renders hold NaN, so the result is damaged: retrain it")
     out_path = ply_path.parent / "eval.json"
-    write_json_atomic(out_path, result)
     lp = f"{result['lpips']:.4f}" if result["lpips"] is not None else f"n/a ({result.get('lpips_reason')})"
-    print(f"{len(views)} {args.split} views: PSNR {result['psnr']:.2f}  SSIM {result['ssim']:.4f}  LPIPS {lp}")
+    # the numbers first: a folder that cannot be written to must not cost the user the evaluation
+    print(f"{len(views)} {args.split} views: PSNR {result['psnr']:.2f}  SSIM {result['ssim']:.4f}  LPIPS {lp}",
+          flush=True)
+    from gsgs_engine.write_errors import writing
+
+    with writing(out_path, "eval.json"):
+        write_json_atomic(out_path, result)
     print(f"written {out_path}", file=sys.stderr)
     return 0

@@ -34,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="maximum SH degree 0..3 (default: the effect plan measures view dependence)")
     parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (0 = only on exit)")
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in OUT/checkpoints")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the run already in OUT (its checkpoints, results, renders, progress)")
     parser.add_argument("--init", default="auto", choices=["auto", "sfm", "points", "random"],
                         help="initial Gaussians: SfM of the training views, the source's points, or random")
     parser.add_argument("--init-points", type=int, default=None,
@@ -73,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
                                            validate_config)
 
     preset_changed = apply_preset(args, getattr(args, "_parser", None)) if args.preset else {}
+    from gsgs_engine.settings_schema import check_args
+
+    check_args(args)  # types, ranges, finiteness of every numeric flag (the rules job.json settings meet)
     if args.prior not in PRIOR_CHOICES:
         raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIOR_CHOICES)}")
     if args.resolution_scale <= 0:
@@ -89,7 +94,14 @@ def run(args: argparse.Namespace) -> int:
     resolve_device(config.backend)  # --backend cuda without CUDA / gsplat stops here, before any data is read
     out = Path(args.out)
     job = Job(root=out, spec={"task": "train"})  # a job-like folder; job.json is written only by Job.create
-    out.mkdir(parents=True, exist_ok=True)
+    from gsgs_engine.run_folder import claim_run_folder
+    from gsgs_engine.train.checkpoint import latest_checkpoint
+
+    claim_run_folder(out, args.resume, args.overwrite, latest_checkpoint(out / "checkpoints") is not None)
+    from gsgs_engine.write_errors import writing
+
+    with writing(out, "the output folder (--out)"):
+        out.mkdir(parents=True, exist_ok=True)
     job.set_status("running", f"training {args.data}")
     try:
         background = (1.0, 1.0, 1.0) if args.background == "white" else (0.0, 0.0, 0.0)
@@ -112,6 +124,11 @@ def run(args: argparse.Namespace) -> int:
         return exc.exit_code
     except TrainingCancelled as exc:
         msg = f"cancelled at step {exc.step}; resume with: {_resume_command(args)}"
+        job.set_status("cancelled", msg)
+        print(f"gsgs: {msg}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:  # Ctrl-C / SIGTERM while loading, planning or evaluating (outside the steps)
+        msg = f"interrupted outside the training steps; resume with: {_resume_command(args)}"
         job.set_status("cancelled", msg)
         print(f"gsgs: {msg}", file=sys.stderr)
         return 130

@@ -112,10 +112,16 @@ def decode_image(path: Path) -> np.ndarray:
                         "run this in the gsgs engine's Python, not Blender's") from exc
 
     path = Path(path)
+    if not path.is_file():
+        raise GsgsError(f"{path}: image file is missing; restore it or remove its view from the scene")
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(2) == b"\xff\xd8":  # JPEG (whatever the extension): libjpeg would decode a truncated one
+                check_jpeg_complete(b"\xff\xd8" + fh.read(), path)
+    except OSError as exc:
+        raise GsgsError(f"{path}: cannot read the image ({exc.strerror or exc}); check the file's permissions") from None
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        if not path.is_file():
-            raise GsgsError(f"{path}: image file is missing; restore it or remove its view from the scene")
         raise GsgsError(f"{path}: OpenCV cannot decode this image; re-save it as PNG or JPEG")
     if img.dtype == np.uint8:
         scale = 1.0 / 255.0
@@ -136,6 +142,32 @@ def decode_image(path: Path) -> np.ndarray:
     else:
         raise GsgsError(f"{path}: image has {img.shape[2]} channels; expected grey, RGB or RGBA")
     return img.astype(np.float32) * np.float32(scale)
+
+
+def check_jpeg_complete(data: bytes, path: Path) -> None:
+    """A JPEG must end its last scan with the end-of-image marker (FF D9).
+
+    libjpeg decodes a file cut short anyway, fills the missing rows with grey and only warns on
+    stderr; such a photo would silently train a grey band into the scene. Entropy-coded data
+    never holds FF D9 (a data byte FF is stuffed as FF 00), so the marker after the last
+    start-of-scan (FF DA) is the image's true end; an EXIF thumbnail's own markers come before
+    the main image's scans and do not count. Bytes after the marker (padding) are allowed."""
+    if data[:2] != b"\xff\xd8":
+        return
+    last_scan = data.rfind(b"\xff\xda")
+    if last_scan < 0 or data.rfind(b"\xff\xd9") < last_scan:
+        raise GsgsError(f"{path}: the JPEG is truncated (no end-of-image marker after its image data; the file was cut "
+                        "short by an interrupted copy or download); copy the photo again or remove it")
+
+
+def check_decodable(views) -> None:
+    """Decode every view's image once (and drop it): a damaged file, or a float image (EXR) holding
+    NaN / Inf, stops the run before training, not after it (test views are otherwise first read by
+    the final evaluation)."""
+    for view in views:
+        img = view.load_rgba()
+        if not np.isfinite(img).all():
+            raise GsgsError(f"{view.image_path}: the image holds NaN or Inf pixel values; re-export it")
 
 
 @dataclass(frozen=True)

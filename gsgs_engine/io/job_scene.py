@@ -113,6 +113,10 @@ def _inline_points(job: Job, data: dict) -> tuple[np.ndarray | None, np.ndarray 
     if not all(k in v for k in ("x", "y", "z")):
         raise GsgsError(f"{path}: a point cloud needs x, y, z properties (named by {job.spec_path} data.points)")
     points = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float32)
+    bad = int((~np.isfinite(points).all(axis=1)).sum())
+    if bad:
+        raise GsgsError(f"{path}: {bad} of {len(points)} points have NaN or Inf coordinates (named by "
+                        f"{job.spec_path} data.points); remove them or re-export the point cloud")
     colors = None
     if all(k in v for k in ("red", "green", "blue")):
         rgb = np.stack([v["red"], v["green"], v["blue"]], axis=1).astype(np.float32)

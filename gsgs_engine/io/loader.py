@@ -56,6 +56,9 @@ def load_scene(path, format: str = "auto", train_split: str | None = None, train
                background=None) -> Scene:
     """Load a scene; images stay on disk until a View asks for them.
 
+    A scene much smaller or larger than usual comes back in rescaled units (scene.world_scale,
+    gsgs_engine.io.world_scale.normalise_scene); results are written in world units.
+
     train_split: which split (NeRF-synthetic: which transforms file(s), "train+dense" joins) is the
       candidate pool for training; default "train".
     train_ids: the training views, as positions in that pool (ints) or view names / file stems
@@ -65,6 +68,13 @@ def load_scene(path, format: str = "auto", train_split: str | None = None, train
     resolution_scale (default 1.0) resizes images and intrinsics; background (default white) is
     what RGBA images are composited on. For a job folder, unset arguments come from job.json.
     """
+    from gsgs_engine.io.world_scale import normalise_scene
+
+    return normalise_scene(_load_scene(path, format, train_split, train_views, train_ids, resolution_scale,
+                                       background))
+
+
+def _load_scene(path, format, train_split, train_views, train_ids, resolution_scale, background) -> Scene:
     if format not in FORMATS:
         raise GsgsError(f"unknown scene format {format!r}; expected one of {', '.join(FORMATS)}")
     if resolution_scale is not None and not (math.isfinite(resolution_scale) and resolution_scale > 0):

@@ -14,7 +14,9 @@ from gsgs_engine.io.images import check_same_size, find_image, image_info, make_
 from gsgs_engine.io.scene import Scene
 
 NEAR, FAR = 2.0, 6.0  # the NeRF-synthetic convention (the objects sit within radius ~1.5 of the origin)
+CAMERA_DISTANCE = 4.0311289  # ... seen from cameras this far from the origin
 _DISTORTION_KEYS = ("k1", "k2", "k3", "p1", "p2")  # nerfstudio / instant-ngp OPENCV keys
+_NUMERIC_KEYS = ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy", "w", "h") + _DISTORTION_KEYS
 _SPLIT_ORDER = {"train": 0, "val": 1, "test": 2}
 
 
@@ -47,6 +49,11 @@ def _frame_camera(meta: dict, frame: dict, image_path: Path, name: str, where: s
         raise GsgsError(f"{where}: transform_matrix is not a 4x4 list of numbers ({exc})") from exc
     if not np.all(np.isfinite(c2w)):
         raise GsgsError(f"{where}: transform_matrix contains NaN or Inf; fix or remove this frame")
+    for key in _NUMERIC_KEYS:
+        value = get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not np.isfinite(value)):
+            raise GsgsError(f"{where}: {key} must be a finite number (got {value!r}); fix the transforms file")
     info = image_info(image_path)
     # Intrinsics refer to w x h when given; photos resized since then scale them proportionally.
     ref_w, ref_h = get("w") or info.width, get("h") or info.height
@@ -103,8 +110,21 @@ def load_nerf_synthetic(path, train_split: str | None = None, resolution_scale: 
         check_same_size(entries, f"split {split!r} ({json_path.name})")
         splits[split] = indices
     splits = _assign_train(splits, train_split, root)
+    ratio = _size_ratio(views)
+    if ratio != 1.0:  # a rescaled copy: the convention's near / far follow the cameras
+        views = [replace(v, camera=replace(v.camera, near=NEAR * ratio, far=FAR * ratio)) for v in views]
     return Scene(views=views, splits=splits, source=str(root), format="blender", background=bg,
-                 near=NEAR, far=FAR, has_alpha=has_alpha)
+                 near=NEAR * ratio, far=FAR * ratio, has_alpha=has_alpha)
+
+
+def _size_ratio(views) -> float:
+    """Median camera distance from the origin over the convention's 4.03 units; 1 within a factor 1.5
+    (every NeRF-synthetic scene keeps NEAR / FAR exactly), the ratio itself for rescaled copies."""
+    if not views:
+        return 1.0
+    dist = float(np.median([np.linalg.norm(v.camera.center) for v in views]))
+    ratio = dist / CAMERA_DISTANCE
+    return 1.0 if not np.isfinite(ratio) or ratio <= 0 or abs(np.log(ratio)) < np.log(1.5) else ratio
 
 
 def _assign_train(splits: dict[str, list[int]], train_split: str | None, root: Path) -> dict[str, list[int]]:

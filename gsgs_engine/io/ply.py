@@ -241,7 +241,34 @@ def read_ply_vertices(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return {name: np.ascontiguousarray(data[name]) for name in data.dtype.names or ()}
 
 
-def read_gaussian_ply(path: str | os.PathLike) -> GaussianPly:
+def nonfinite_rows(g: GaussianPly) -> tuple[int, list[str]]:
+    """(number of splats with a NaN / Inf value, the properties holding them)."""
+    if len(g) == 0:
+        return 0, []
+    bad = np.zeros(len(g), bool)
+    fields = []
+    arrays = {"x/y/z": g.positions, "opacity": g.opacity_logits, "scale_*": g.log_scales, "rot_*": g.quats_wxyz,
+              "f_dc_*": g.sh_dc, "f_rest_*": g.sh_rest.reshape(len(g), -1)}
+    arrays.update({k: v for k, v in g.extra.items() if np.issubdtype(v.dtype, np.floating)})
+    for name, values in arrays.items():
+        rows = ~np.isfinite(values).reshape(len(g), -1).all(axis=1)
+        if rows.any():
+            bad |= rows
+            fields.append(name)
+    return int(bad.sum()), fields
+
+
+def check_finite(g: GaussianPly, path) -> GaussianPly:
+    """`g`, or a GsgsError naming `path` when a value is NaN or Inf (such a splat renders as nothing or
+    poisons the whole image)."""
+    count, fields = nonfinite_rows(g)
+    if count:
+        raise GsgsError(f"{path}: {count} of {len(g)} splats hold NaN or Inf values (in {', '.join(fields)}); the "
+                        "file is damaged or comes from a run that diverged: re-export or retrain it")
+    return g
+
+
+def read_gaussian_ply(path: str | os.PathLike, require_finite: bool = True) -> GaussianPly:
     """Read a 3DGS-layout splat PLY, in any property order, binary (either endianness) or ASCII.
 
     A file with any of opacity / scale_* / rot_* must have all of them and a colour. Colour is
@@ -251,7 +278,8 @@ def read_gaussian_ply(path: str | os.PathLike) -> GaussianPly:
     opacity 0.1, identity rotation, isotropic scale sqrt(bounding-box surface area / N) (the
     spacing of N points spread over the box's surface), SH degree 0. `defaulted` lists what
     was filled in. Missing normals are zeros; float64 values are rounded to float32;
-    properties outside the layout are kept in `extra`.
+    properties outside the layout are kept in `extra`. With `require_finite` (the default) a
+    NaN or Inf anywhere is a GsgsError naming the file (`check_finite`).
     """
     path = _existing(path)
     data = _read_element(path, "vertex")
@@ -317,7 +345,8 @@ def read_gaussian_ply(path: str | os.PathLike) -> GaussianPly:
         defaulted += ["opacity_logits", "log_scales", "quats_wxyz"]
 
     extra = {c: np.ascontiguousarray(data[c]) for c in names if c not in used}
-    return GaussianPly(positions, opacity_logits, log_scales, quats, sh_dc, sh_rest, normals, extra, tuple(defaulted))
+    g = GaussianPly(positions, opacity_logits, log_scales, quats, sh_dc, sh_rest, normals, extra, tuple(defaulted))
+    return check_finite(g, path) if require_finite else g
 
 
 def _float32_columns(data: np.ndarray, cols: tuple[str, ...]) -> np.ndarray:

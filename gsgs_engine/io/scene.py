@@ -69,6 +69,7 @@ class Scene:
     points: np.ndarray | None = None  # (N, 3) sparse points when the source has them
     point_colors: np.ndarray | None = None  # (N, 3) in [0, 1]
     has_alpha: bool = False
+    world_scale: float = 1.0  # world length = internal length x world_scale (gsgs_engine.io.world_scale)
 
     def split(self, name: str) -> list[View]:
         if name not in self.splits:

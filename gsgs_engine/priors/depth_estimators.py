@@ -34,7 +34,9 @@ class DptDepthEstimator:
         self.model_dir = model_dir
         self.device = torch.device(device)
         self.processor = AutoImageProcessor.from_pretrained(model_dir, local_files_only=True)
-        self.model = AutoModelForDepthEstimation.from_pretrained(model_dir, local_files_only=True).to(self.device).eval()
+        # safetensors only: a pickled pytorch_model.bin from a received folder could run code when loaded
+        self.model = AutoModelForDepthEstimation.from_pretrained(model_dir, local_files_only=True,
+                                                                 use_safetensors=True).to(self.device).eval()
 
     @torch.no_grad()
     def __call__(self, image: torch.Tensor | np.ndarray) -> torch.Tensor:

@@ -74,7 +74,8 @@ class DiffusionPrior:
         self.device = _resolve_device(settings.device)
         self.dtype = torch.float16 if self.device.type == "cuda" else torch.float32
         md = settings.model_dir
-        kw = {"local_files_only": True, "torch_dtype": self.dtype}
+        # safetensors only: a model folder may come from anywhere, and a pickled .bin can run code when loaded
+        kw = {"local_files_only": True, "torch_dtype": self.dtype, "use_safetensors": True}
         self.unet = UNet2DConditionModel.from_pretrained(md, subfolder="unet", **kw)
         self.vae = AutoencoderKL.from_pretrained(md, subfolder="vae", **kw)
         self.text_encoder = CLIPTextModel.from_pretrained(md, subfolder="text_encoder", **kw)

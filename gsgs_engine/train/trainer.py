@@ -25,6 +25,7 @@ from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cam
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_prune, reset_opacity
 from gsgs_engine.train.losses import photometric_terms, total_loss
+from gsgs_engine.train.nan_guard import check_skipped, nonfinite_cause
 from gsgs_engine.train.technique import StepContext, Technique
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
@@ -32,7 +33,7 @@ from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 # shared 2-core dev machine: 1000 steps took 187 s of training (3.5 min wall with SfM and
 # evaluation) and reached test PSNR 22.32 / SSIM 0.847. Well inside the 10-minute budget.
 DEFAULT_ITERS = 1000
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2  # 2: safetensors + JSON (1 was a pickle, never loaded)
 
 
 @dataclass
@@ -203,6 +204,7 @@ class Trainer:
                                                 "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
         self.step = 0
         self.nan_steps_skipped = 0
+        self.nan_causes: dict[str, int] = {}
         self.train_seconds = 0.0
         self.last_losses: dict[str, float] = {}
         self.densify_log: list[dict] = []
@@ -387,11 +389,15 @@ class Trainer:
         self.phase_seconds["backward"] += t2 - t1
         if not ok:
             # never let NaN/Inf reach the parameters or Adam's moments
+            cause = nonfinite_cause(terms, loss, model.params)
+            self.nan_causes[cause] = self.nan_causes.get(cause, 0) + 1
             self.optimizer.zero_grad(set_to_none=True)
             self.nan_steps_skipped += 1
             self.step = step
             self.last_losses = {"loss": float("nan")}
-            self.log(f"step {step}: non-finite loss or gradient, step skipped ({self.nan_steps_skipped} so far)")
+            self.log(f"step {step}: non-finite loss or gradient ({cause}), step skipped "
+                     f"({self.nan_steps_skipped} so far)")
+            check_skipped(self.nan_steps_skipped, step, self.config.iters, self.nan_causes)
             return False
 
         densifying = cfg.densify and step <= sched.densify_until
@@ -469,7 +475,13 @@ class Trainer:
                 "nan_steps_skipped": self.nan_steps_skipped, "train_seconds": self.train_seconds,
                 "opacity_resets": self.opacity_resets, "size_extent": self.size_extent,
                 "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log,
-                "techniques": {t.name: t.state_dict() for t in self.techniques}}
+                "techniques": {t.name: t.state_dict() for t in self.techniques},
+                "scene_fingerprint": self.scene_fingerprint()}
+
+    def scene_fingerprint(self) -> dict:
+        from gsgs_engine.run_folder import scene_fingerprint
+
+        return scene_fingerprint(self.train_views, self._targets)
 
     def save_checkpoint(self) -> Path | None:
         if self.checkpoint_dir is None:
@@ -483,11 +495,14 @@ class Trainer:
         state = ckpt.load_checkpoint(path)
         if state.get("format") != CHECKPOINT_FORMAT:
             raise GsgsError(f"{path}: checkpoint format {state.get('format')!r} is not {CHECKPOINT_FORMAT}; "
-                            "train again without --resume")
+                            f"{ckpt.START_AFRESH}")
         names = [v.name for v in self.train_views]
         if state["train_names"] != names:
             raise GsgsError(f"{path}: this checkpoint was trained on views {state['train_names']}, not {names}; "
                             "resume with the same training views or use a new --out folder")
+        from gsgs_engine.run_folder import check_resume
+
+        check_resume(path, state, self.scene_fingerprint(), self.config.to_dict())
         saved = TrainConfig.from_dict(state["config"])
         if saved.iters != self.config.iters:
             self.log(f"the checkpoint's schedule has {saved.iters} iterations; keeping it (asked: {self.config.iters})")

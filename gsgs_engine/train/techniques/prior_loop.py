@@ -334,6 +334,9 @@ class PriorLoop(Technique):
             _save_png(folder / f"{p.name}_depth.png", _depth_png(inverse_depth(out.depth, out.alpha)))
             if self.pseudo_depth:
                 _save_png(folder / f"{p.name}_depth_estimate.png", _depth_png(*self.pseudo_depth[j]))
-        cams = [{"name": p.name, "nearest_train": p.nearest_train, "source": p.source, **p.camera.to_dict()}
-                for p in self.pseudo]
+        from gsgs_engine.io.world_scale import camera_dicts_to_world
+
+        cams = camera_dicts_to_world([{"name": p.name, "nearest_train": p.nearest_train, "source": p.source,
+                                       **p.camera.to_dict()} for p in self.pseudo],
+                                     getattr(self.trainer.scene, "world_scale", 1.0))  # what the user's scene measures
         (folder / "round.json").write_text(json.dumps({**stats, "views": cams}, indent=1))
