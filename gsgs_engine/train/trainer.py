@@ -557,7 +557,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     from gsgs_engine.io.ply import write_gaussian_ply
     from gsgs_engine.job import write_json_atomic
     from gsgs_engine.progress import Progress
-    from gsgs_engine.train.evaluate import evaluate_views
+    from gsgs_engine.train.evaluate import evaluate_views, lpips_fields
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -610,16 +610,13 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         **(plan or {}),
     }
     metrics = {
-        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], "lpips": evaluation["lpips"],
-        "lpips_reason": evaluation.get("lpips_reason"),
+        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], **lpips_fields(evaluation),
         "train_seconds": trainer.train_seconds, "iterations": trainer.step,
         "num_gaussians": trainer.model.num_gaussians, "nan_steps_skipped": trainer.nan_steps_skipped,
         "final_losses": trainer.last_losses, "init": trainer.init_info.to_dict(), "plan": full_plan,
         "phase_seconds": {k: round(v, 3) for k, v in trainer.phase_seconds.items()},
         "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
     }
-    if metrics["lpips"] is not None:
-        metrics.pop("lpips_reason")
     write_json_atomic(out_dir / "metrics.json", metrics)
     return metrics
 
