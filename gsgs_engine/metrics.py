@@ -16,6 +16,7 @@ import torch.nn.functional as F
 
 from gsgs_engine import GsgsError
 from gsgs_engine.lpips import load_lpips, lpips_distance
+from gsgs_engine.lpips.networks import MIN_SIDE
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
@@ -93,4 +94,7 @@ def lpips_or_none(img, gt, net: str = "vgg", cache: str | os.PathLike | None = N
     if model is None:
         return None, description
     x, y = _as_bchw(img, gt)
+    if min(x.shape[-2:]) < MIN_SIDE[net]:
+        return None, (f"LPIPS ({net}) needs images of at least {MIN_SIDE[net]} x {MIN_SIDE[net]} pixels, "
+                      f"got {x.shape[-1]} x {x.shape[-2]}")
     return float(lpips_distance(model, x, y).mean()), description

@@ -70,6 +70,16 @@ def test_flat_and_extreme_images_give_finite_distances():
     assert float(lpips_distance(model, black, black).abs().max()) == 0.0
 
 
+def test_images_below_the_networks_reach_give_none_with_reason():
+    model_or_skip("alex")
+    model_or_skip("vgg")
+    small = torch.rand(20, 24, 3)
+    value, reason = lpips_or_none(small, small, net="alex")
+    assert value is None and "at least 31 x 31" in reason
+    value, _ = lpips_or_none(small[:16, :16], small[:16, :16], net="vgg")
+    assert value == 0.0
+
+
 def _pickle_bytes(obj) -> bytes:
     return pickle.dumps(obj, protocol=3)
 

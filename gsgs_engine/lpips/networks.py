@@ -20,6 +20,8 @@ _VGG16_CFG = [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M"
 # indices in `features` after which LPIPS taps (relu1 .. relu5 for AlexNet; relu1_2 .. relu5_3 for VGG16)
 TAPS = {"alex": (1, 4, 7, 9, 11), "vgg": (3, 8, 15, 22, 29)}
 CHANNELS = {"alex": (64, 192, 384, 256, 256), "vgg": (64, 128, 256, 512, 512)}
+# the smallest image side whose last tap still has a pixel (AlexNet: stride-4 conv + two 3/2 pools; VGG: 4 pools)
+MIN_SIDE = {"alex": 31, "vgg": 16}
 
 
 def alexnet_features() -> nn.Sequential:
