@@ -11,7 +11,7 @@ points of the 3 views, 19.22 with MVS points): per training view,
 3. a geometric-consistency check: a pixel's 3D point is projected into another view, that view's
    depth is read there, lifted back and reprojected into the reference; the pixel is kept when this
    round trip lands within `reproj_px` pixels and `rel_depth` relative depth for >= `min_consistent`
-   other views;
+   other views (1 below 5 views, else 2);
 4. the kept pixels of every view fused into coloured world points, subsampled to `max_points`.
 Where stereo finds little (textureless views, too few overlaps), points spread through the views'
 frustums between near and far, coloured by the pixel they sit on, fill up to `fallback_points`.
@@ -45,7 +45,10 @@ class MVSConfig:
     min_texture: float = 2e-4  # variance of the reference window (grey levels in [0, 1]) below this: no match
     reproj_px: float = 1.0  # geometric consistency: round-trip reprojection error (working pixels)
     rel_depth: float = 0.01  # geometric consistency: relative depth difference
-    min_consistent: int = 1  # other views that must agree
+    # other views that must agree; None: 1 below 5 views (3-view LLFF has only 2 others), else 2. Measured on the
+    # NeRF-synthetic 8 views: the share of points inside all 25 test silhouettes rises from 78 / 73 % (lego / chair,
+    # 1 view) to 88 / 78 % (2 views) for half the points (scripts/mvs_check.py)
+    min_consistent: int | None = None
     max_points: int = 100_000
     min_points: int = 2000  # fewer fused points than this: add the frustum fallback
     fallback_points: int = 20_000
@@ -55,7 +58,7 @@ class MVSConfig:
     def validate(self) -> "MVSConfig":
         if self.max_side < 16 or self.num_depths < 3 or self.window < 3 or self.window % 2 == 0:
             raise GsgsError(f"mvs: max_side >= 16, num_depths >= 3 and an odd window >= 3 are needed, got {self}")
-        if self.max_points < 1 or self.min_consistent < 0 or self.max_sources < 1:
+        if self.max_points < 1 or (self.min_consistent is not None and self.min_consistent < 0) or self.max_sources < 1:
             raise GsgsError(f"mvs: max_points >= 1, min_consistent >= 0 and max_sources >= 1 are needed, got {self}")
         return self
 
@@ -331,9 +334,11 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
             depths.append(depth)
             log(f"mvs: view {i + 1}/{len(views)} {view.camera.name}: {int(torch.isfinite(depth).sum())} matched pixels "
                 f"of {depth.numel()} (depth {view.near:.3g}..{view.far:.3g}, {time.perf_counter() - t0:.1f} s)")
+        need = cfg.min_consistent if cfg.min_consistent is not None else (1 if len(views) < 5 else 2)
+        stats["min_consistent"] = need
         for i, view in enumerate(views):
             count = consistent_views(i, depths, views, cfg)
-            keep = torch.isfinite(depths[i]) & (count >= cfg.min_consistent)
+            keep = torch.isfinite(depths[i]) & (count >= need)
             flat = keep.reshape(-1)
             pts_all.append(_backproject(view.camera, depths[i])[flat].float().numpy())
             cols_all.append(view.rgb.reshape(-1, 3)[flat].numpy())
