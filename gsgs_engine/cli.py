@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "rasterizer": ("gsgs_engine.bench.rasterizer", "forward / backward time and memory of each rasteriser backend"),
     "accuracy": ("gsgs_engine.bench.accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
+    "sparse": ("gsgs_engine.bench.sparse", "the sparse-view protocols (LLFF 3 views, NeRF-synthetic 8 views): "
+               "variants x scenes x seeds, mean +- std"),
     "dynamic": ("gsgs_engine.bench.dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
 }
 

@@ -1,5 +1,5 @@
-"""Image quality: PSNR and SSIM as 3DGS evaluates them (torch, differentiable), and LPIPS only
-when its pretrained weights are on this machine — otherwise None with the reason, never a guess.
+"""Image quality: PSNR and SSIM as 3DGS evaluates them (torch, differentiable), and LPIPS v0.1
+(VGG or AlexNet) when its converted weights are in the cache — otherwise None with the reason, never a guess.
 
 Images are [H, W, C] or [B, C, H, W], values in [0, 1]; callers clamp renders first, as the
 3DGS evaluation does.
@@ -15,15 +15,14 @@ import torch
 import torch.nn.functional as F
 
 from gsgs_engine import GsgsError
+from gsgs_engine.lpips import load_lpips, lpips_distance
+from gsgs_engine.lpips.networks import MIN_SIDE
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_C1 = 0.01**2
 SSIM_C2 = 0.03**2
 
-# torchvision checkpoints the `lpips` package's backbones load (torch hub file names)
-LPIPS_BACKBONES = {"alex": "alexnet-owt-7be5be79.pth", "vgg": "vgg16-397923af.pth", "squeeze": "squeezenet1_1-b8a52dc0.pth"}
-_lpips_models: dict[tuple[str, str], torch.nn.Module] = {}
 
 
 def _as_bchw(img, gt) -> tuple[torch.Tensor, torch.Tensor]:
@@ -85,43 +84,17 @@ def ssim_map(img, gt, window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA)
         (mu1_sq + mu2_sq + SSIM_C1) * (sigma1_sq + sigma2_sq + SSIM_C2))
 
 
-def lpips_or_none(img, gt, weights_dir: str | os.PathLike | None = None, net: str = "alex") -> tuple[float | None, str]:
-    """(LPIPS value, description), or (None, why not) when LPIPS cannot be computed here.
+def lpips_or_none(img, gt, net: str = "vgg", cache: str | os.PathLike | None = None) -> tuple[float | None, str]:
+    """(mean LPIPS v0.1 over the batch, description), or (None, why not) when the converted weights are absent.
 
-    Uses the `lpips` package (its linear layers ship with it) on a torchvision backbone whose
-    checkpoint must already be on disk: `weights_dir` or torch's hub directory, in the torch
-    hub layout (`<dir>/checkpoints/alexnet-owt-7be5be79.pth` for net="alex"). Nothing is
-    downloaded.
+    `net` is "vgg" (what the 3DGS-family papers report) or "alex" (the lpips package's default).
+    Weights come from the cache `make` fills (gsgs_engine.lpips.fetch); nothing is downloaded here.
     """
-    if net not in LPIPS_BACKBONES:
-        raise GsgsError(f"metrics: unknown LPIPS network {net!r}; use one of {', '.join(LPIPS_BACKBONES)}")
-    try:
-        import lpips
-    except ImportError:
-        return None, ("LPIPS weights not available: the `lpips` package is not installed, and it needs pretrained "
-                      f"{net} weights (pip install lpips, then put {LPIPS_BACKBONES[net]} in <torch hub dir>/checkpoints)")
-    hub_dirs = ([Path(weights_dir)] if weights_dir is not None else []) + [Path(torch.hub.get_dir())]
-    hub_dir = next((d for d in hub_dirs if (d / "checkpoints" / LPIPS_BACKBONES[net]).is_file()), None)
-    if hub_dir is None:
-        where = " or ".join(str(d / "checkpoints") for d in hub_dirs)
-        return None, f"LPIPS weights not available: {LPIPS_BACKBONES[net]} is not in {where}; nothing is downloaded"
-    linear = Path(lpips.__file__).parent / "weights" / "v0.1" / f"{net}.pth"
-    if not linear.is_file():
-        return None, f"LPIPS weights not available: the lpips package has no {linear}; reinstall lpips"
-    key = (net, str(hub_dir))
-    if key not in _lpips_models:
-        previous = torch.hub.get_dir()
-        torch.hub.set_dir(str(hub_dir))  # torchvision finds the backbone there instead of downloading it
-        try:
-            _lpips_models[key] = lpips.LPIPS(net=net, pretrained=True, verbose=False).eval()
-        except Exception as exc:  # a corrupt checkpoint or a missing torchvision: report, do not guess
-            return None, f"LPIPS unavailable: building the {net} model failed ({type(exc).__name__}: {exc})"
-        finally:
-            torch.hub.set_dir(previous)
+    model, description = load_lpips(net, None if cache is None else Path(cache))
+    if model is None:
+        return None, description
     x, y = _as_bchw(img, gt)
-    model = _lpips_models[key].to(x.device)
-    if x.shape[1] != 3:
-        raise GsgsError(f"metrics: LPIPS needs RGB images, got {x.shape[1]} channels")
-    with torch.no_grad():
-        value = model(x.float() * 2 - 1, y.float() * 2 - 1)  # LPIPS takes [-1, 1]
-    return float(value.mean()), f"LPIPS ({net}, lpips package)"
+    if min(x.shape[-2:]) < MIN_SIDE[net]:
+        return None, (f"LPIPS ({net}) needs images of at least {MIN_SIDE[net]} x {MIN_SIDE[net]} pixels, "
+                      f"got {x.shape[-1]} x {x.shape[-2]}")
+    return float(lpips_distance(model, x, y).mean()), description

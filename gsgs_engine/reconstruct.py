@@ -44,7 +44,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     """
     from gsgs_engine.io.ply import write_gaussian_ply
     from gsgs_engine.progress import Progress
-    from gsgs_engine.train.evaluate import evaluate_views
+    from gsgs_engine.train.evaluate import evaluate_views, lpips_fields
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -63,7 +63,15 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     from gsgs_engine.io.images import check_decodable
 
     check_decodable(scene.test if "test" in scene.splits else [])  # a broken test image stops us now, not after training
-    trainer.setup(resume=resume)
+    initial, init_info = None, None
+    if config.init == "mvs" and not scene.has_time and not (
+            resume and checkpoint_dir is not None and ckpt.latest_checkpoint(checkpoint_dir) is not None):
+        # dense initialisation: multi-view stereo over the training views (known poses) + their SfM points
+        from gsgs_engine.init.mvs import dense_initial_model
+
+        initial, init_info = dense_initial_model(scene, trainer.train_views, config.sh_degree, seed=config.seed,
+                                                 log=log)
+    trainer.setup(resume=resume, initial_model=initial, init_info=init_info)
     if setup_trainer is not None:  # the orchestration adds the run's techniques here
         setup_trainer(trainer)
     progress.total = trainer.config.iters
@@ -103,8 +111,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         **(plan or {}),
     }
     metrics = {
-        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], "lpips": evaluation["lpips"],
-        "lpips_reason": evaluation.get("lpips_reason"),
+        "psnr": evaluation["psnr"], "ssim": evaluation["ssim"], **lpips_fields(evaluation),
         "train_seconds": trainer.train_seconds, "iterations": trainer.step,
         "num_gaussians": trainer.model.num_gaussians, "nan_steps_skipped": trainer.nan_steps_skipped,
         "final_losses": trainer.last_losses, "init": trainer.init_info.to_dict(), "plan": full_plan,
@@ -112,8 +119,6 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
         "techniques": {t.name: t.report() for t in trainer.techniques},
     }
-    if metrics["lpips"] is not None:
-        metrics.pop("lpips_reason")
     write_json_atomic(out_dir / "metrics.json", metrics)
     return metrics
 

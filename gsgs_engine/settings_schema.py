@@ -60,7 +60,7 @@ TRAIN = {
     "checkpoint_every": Rule("int", 0, 10_000_000, flag="--checkpoint-every"),
     "lambda_dssim": Rule("float", 0, 1),
     "random_background": Rule("bool"),
-    "init": Rule("choice", choices=("auto", "sfm", "points", "random"), flag="--init"),
+    "init": Rule("choice", choices=("auto", "sfm", "points", "random", "mvs"), flag="--init"),
     "random_init_points": Rule("int", 1, 2_000_000, flag="--init-points"),
     "densify": Rule("bool"),
     "max_gaussians": Rule("int", 1, 100_000_000),

@@ -36,8 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in OUT/checkpoints")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the run already in OUT (its checkpoints, results, renders, progress)")
-    parser.add_argument("--init", default="auto", choices=["auto", "sfm", "points", "random"],
-                        help="initial Gaussians: SfM of the training views, the source's points, or random")
+    parser.add_argument("--init", default="auto", choices=["auto", "sfm", "points", "random", "mvs"],
+                        help="initial Gaussians: SfM of the training views, the source's points, random, or mvs "
+                             "(dense multi-view stereo of the training views plus their SfM points)")
     parser.add_argument("--init-points", type=int, default=None,
                         help="number of random Gaussians when there are too few SfM points (default 5000)")
     parser.add_argument("--random-background", action="store_true",

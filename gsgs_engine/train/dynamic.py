@@ -152,7 +152,11 @@ class SpacetimeTrainer(Trainer):
         self._pending_state: dict | None = None
 
     # -- model, optimiser, rendering ------------------------------------------------------------
-    def setup(self, resume: bool = False, initial_model: GaussianModel | None = None) -> None:
+    def setup(self, resume: bool = False, initial_model: GaussianModel | None = None,
+              init_info: InitInfo | None = None) -> None:
+        if self.config.init == "mvs":
+            raise GsgsError("--init mvs builds a static model; a scene with time starts from its own 4D init "
+                            "(use --init auto, sfm, points or random)")
         if initial_model is not None and not isinstance(initial_model, SpacetimeModel):
             raise GsgsError("a 4D trainer continues only from a 4D model (SpacetimeModel)")
         resuming = resume and self.checkpoint_dir and ckpt.latest_checkpoint(self.checkpoint_dir) is not None
@@ -168,7 +172,7 @@ class SpacetimeTrainer(Trainer):
             self.init_info = info
             self.log(f"4D init: {info.method}, {info.num_points} Gaussians ({info.reason})")
             return
-        super().setup(resume=resume, initial_model=initial_model)
+        super().setup(resume=resume, initial_model=initial_model, init_info=init_info)
 
     def _make_optimizer(self) -> torch.optim.Optimizer:
         if not isinstance(self.model, SpacetimeModel):

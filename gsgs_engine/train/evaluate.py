@@ -1,4 +1,5 @@
-"""Evaluation on held-out views: PSNR, SSIM, LPIPS (null with a reason when unavailable), renders."""
+"""Evaluation on held-out views: PSNR, SSIM, LPIPS VGG and AlexNet (null with a reason when the weights
+are absent), renders."""
 
 from __future__ import annotations
 
@@ -27,11 +28,19 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
         raise OSError(f"could not write {path}")
 
 
-def _lpips(img: torch.Tensor, gt: torch.Tensor) -> tuple[float | None, str]:
-    from gsgs_engine.metrics import lpips_or_none
+# "lpips" is the VGG value (what the 3DGS-family sparse-view papers report); AlexNet is recorded beside it
+LPIPS_MAIN_NET = "vgg"
+LPIPS_NETS = ("vgg", "alex")
 
-    value, reason = lpips_or_none(img, gt)
-    return (None if value is None else float(value)), (reason or "")
+
+def lpips_fields(evaluation: dict) -> dict:
+    """The LPIPS keys metrics.json carries: lpips (= lpips_vgg), lpips_net, lpips_vgg, lpips_alex, and
+    lpips_reason only when the value is null."""
+    fields = {"lpips": evaluation.get("lpips"), "lpips_net": LPIPS_MAIN_NET}
+    fields.update({f"lpips_{net}": evaluation.get(f"lpips_{net}") for net in LPIPS_NETS})
+    if fields["lpips"] is None:
+        fields["lpips_reason"] = evaluation.get("lpips_reason") or "LPIPS unavailable"
+    return fields
 
 
 def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = None,
@@ -41,36 +50,41 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
     Renders are written for all views when there are at most 30, else for the first 8
     (or `max_renders`). Returns mean psnr / ssim / lpips and a per-view list.
     """
-    from gsgs_engine.metrics import psnr, ssim
+    from gsgs_engine.metrics import lpips_or_none, psnr, ssim
 
     if max_renders is None:
         max_renders = len(views) if len(views) <= ALL_RENDERS_UP_TO else MAX_RENDERS_WHEN_MANY
     t0 = time.perf_counter()
     per_view = []
-    lpips_values: list[float] = []
+    lpips_values: dict[str, list[float]] = {net: [] for net in LPIPS_NETS}
     lpips_reason = ""
     for i, view in enumerate(views):
         gt = torch.from_numpy(np.ascontiguousarray(view.image(), dtype=np.float32))
         with torch.no_grad():
             img = render_fn(view.camera).color.detach().clamp(0.0, 1.0).cpu()  # the model may live on a GPU
             entry = {"name": view.name, "psnr": float(psnr(img, gt)), "ssim": float(ssim(img, gt))}
-            lp, reason = _lpips(img, gt)
-        if lp is None:
-            lpips_reason = reason
-        else:
-            lpips_values.append(lp)
-        entry["lpips"] = lp
+            for net in LPIPS_NETS:
+                lp, reason = lpips_or_none(img, gt, net=net)
+                entry[f"lpips_{net}"] = lp
+                if lp is None:
+                    lpips_reason = lpips_reason or reason
+                else:
+                    lpips_values[net].append(lp)
+        entry["lpips"] = entry[f"lpips_{LPIPS_MAIN_NET}"]
         per_view.append(entry)
         if renders_dir is not None and i < max_renders:
             write_png(Path(renders_dir) / f"{i:03d}_{_safe_name(view.name)}.png", img.numpy())
     result = {
         "psnr": float(np.mean([v["psnr"] for v in per_view])) if per_view else None,
         "ssim": float(np.mean([v["ssim"] for v in per_view])) if per_view else None,
-        "lpips": float(np.mean(lpips_values)) if per_view and len(lpips_values) == len(per_view) else None,
+        **{f"lpips_{net}": float(np.mean(values)) if per_view and len(values) == len(per_view) else None
+           for net, values in lpips_values.items()},
         "num_views": len(per_view),
         "per_view": per_view,
         "seconds": time.perf_counter() - t0,
     }
+    result["lpips"] = result[f"lpips_{LPIPS_MAIN_NET}"]
+    result["lpips_net"] = LPIPS_MAIN_NET
     if result["lpips"] is None:
         result["lpips_reason"] = lpips_reason or ("no test views" if not per_view else "LPIPS unavailable")
     return result

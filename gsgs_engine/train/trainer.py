@@ -147,8 +147,11 @@ def initialise_gaussians(scene, train_views, config: TrainConfig, generator: tor
             return GaussianModel.from_points(scene.points, scene.point_colors, config.sh_degree), info
         n = 0 if scene.points is None else len(scene.points)
         reasons.append(f"the source has {n} sparse points (< {config.min_init_points})")
+    if config.init == "mvs":
+        raise GsgsError("init 'mvs' (dense multi-view stereo) is made by the orchestration "
+                        "(gsgs_engine.reconstruct / gsgs_engine.init.mvs.dense_initial_model) and passed in as initial_model")
     if config.init not in ("auto", "sfm", "points", "random"):
-        raise GsgsError(f"unknown init {config.init!r}; use auto, sfm, points or random")
+        raise GsgsError(f"unknown init {config.init!r}; use auto, sfm, points, random or mvs")
     lo, hi = scene_bounds_from_cameras([v.camera for v in train_views], scene.near, scene.far)
     model = GaussianModel.random_in_box(lo, hi, config.random_init_points, config.sh_degree, generator=generator)
     why = "; ".join(reasons) if reasons else "requested"
@@ -244,8 +247,10 @@ class Trainer:
                           torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).to(self.device))
         return targets, alphas
 
-    def setup(self, resume: bool = False, initial_model: GaussianModel | None = None) -> None:
-        """Initialise a new model (or take `initial_model`), or continue from the newest checkpoint when `resume`."""
+    def setup(self, resume: bool = False, initial_model: GaussianModel | None = None,
+              init_info: InitInfo | None = None) -> None:
+        """Initialise a new model (or take `initial_model`, described by `init_info`), or continue from the newest
+        checkpoint when `resume`."""
         t0 = time.perf_counter()
         path = ckpt.latest_checkpoint(self.checkpoint_dir) if (resume and self.checkpoint_dir) else None
         if path is not None:
@@ -256,7 +261,8 @@ class Trainer:
                 self.log(f"no checkpoint in {self.checkpoint_dir}; starting from scratch")
             if initial_model is not None:
                 self.model = initial_model
-                self.init_info = InitInfo("given", initial_model.num_gaussians, "a model passed by the caller")
+                self.init_info = init_info or InitInfo("given", initial_model.num_gaussians,
+                                                       "a model passed by the caller")
             else:
                 self.model, self.init_info = initialise_gaussians(self.scene, self.train_views, self.config,
                                                                   self.torch_gen, self.log)

@@ -1,0 +1,316 @@
+"""`gsgs bench sparse`: the sparse-view protocols of the 3DGS-family papers, N seeds, mean ± std.
+
+Protocols (../shared/METHOD.md, "Protocols"):
+- llff: 3 training views of images_8 (504x378): test = every 8th image (index % 8 == 0, names
+  sorted), train = round(linspace(0, n_rest - 1, 3)) over the rest (the LLFF loader's train_views=3
+  does exactly this); metrics at 504x378.
+- blender: NeRF-synthetic, training ids 2, 16, 26, 55, 73, 76, 86, 93 of the train split (not 75),
+  test r_0 .. r_192 step 8 (25 views), 400x400 (resolution scale 0.5 of the 800 px release), white
+  background; metrics at 400x400.
+Metrics: PSNR, SSIM (the 3DGS Gaussian-window SSIM of gsgs_engine.metrics), LPIPS v0.1 VGG (and
+AlexNet beside it), train seconds, final Gaussian count.
+
+Each (scene, variant, seed) cell is a job folder trained by `python -m gsgs_engine run-job` in its
+own process, so a variant is just job.json "settings" (the same keys `gsgs train` jobs take: "prior",
+"init", "iters", "preset", technique settings the engine adds later ...). A cell whose
+result/metrics.json exists and whose status is ok is not run again: re-running the command resumes.
+The table (markdown) and all numbers (JSON) go to --doc (default docs/sparse_bench.{md,json}).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+BLENDER_TRAIN_IDS = ["r_2", "r_16", "r_26", "r_55", "r_73", "r_76", "r_86", "r_93"]
+
+# protocol -> how its scenes are loaded and evaluated
+PROTOCOLS: dict[str, dict] = {
+    "llff": {"data": {"train_views": 3}, "settings": {"resolution_scale": 1.0},
+             "scenes": ["llff_flower", "llff_horns"], "lpips_net": "vgg"},
+    "blender": {"data": {"train_ids": BLENDER_TRAIN_IDS},
+                "settings": {"resolution_scale": 0.5, "background": [1.0, 1.0, 1.0]},
+                "scenes": ["blender_lego", "blender_chair"], "lpips_net": "vgg"},
+}
+
+# named variants: job.json "settings" each; the same dict for every scene of a protocol (nothing per scene)
+VARIANTS: dict[str, dict] = {
+    "3dgs (sparse SfM init)": {"prior": "none", "init": "sfm"},
+    "auto": {"prior": "auto"},
+}
+METRIC_KEYS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "train_seconds", "seconds", "num_gaussians")
+
+
+def cell_numbers(metrics: dict) -> dict:
+    """The table's numbers from a metrics.json; "seconds" = every phase but evaluation (plan, init incl.
+    SfM / MVS, training loop, prior rounds), "train_seconds" = the optimisation loop alone."""
+    phases = metrics.get("phase_seconds") or {}
+    out = {k: metrics.get(k) for k in METRIC_KEYS if k != "seconds"}
+    out["seconds"] = float(sum(v for k, v in phases.items() if k != "evaluate")) if phases else None
+    return out
+
+
+def cell_dir(work: Path, protocol: str, scene: str, variant: str, seed: int) -> Path:
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in variant).strip("_") or "variant"
+    return work / protocol / scene / safe / f"seed{seed}"
+
+
+def cell_spec(protocol: str, scene_path: Path, variant_settings: dict, seed: int, iters: int | None,
+              resolution_scale: float | None) -> tuple[dict, dict]:
+    """(job data, job settings) of one cell; protocol settings win over nothing, the variant over them."""
+    proto = PROTOCOLS[protocol]
+    data = {"path": str(scene_path.resolve()), **proto["data"]}
+    settings = {**proto["settings"], **variant_settings, "seed": int(seed), "checkpoint_every": 0}
+    if iters is not None:
+        settings["iters"] = int(iters)
+    if resolution_scale is not None:
+        settings["resolution_scale"] = float(resolution_scale)
+    return data, settings
+
+
+def finished_metrics(folder: Path) -> dict | None:
+    """metrics.json of a cell whose job ended ok, else None (to be run, or run again)."""
+    from gsgs_engine.job import read_status
+
+    metrics = folder / "result" / "metrics.json"
+    status = read_status(folder) if folder.is_dir() else None
+    if not metrics.is_file() or not status or status.get("state") != "ok":
+        return None
+    try:
+        return json.loads(metrics.read_text())
+    except json.JSONDecodeError:
+        return None
+
+
+def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None = None,
+             python: str = sys.executable) -> tuple[dict | None, str]:
+    """Write the job folder and train it in a child process. Returns (metrics or None, message)."""
+    from gsgs_engine.bench.accuracy import _child_env
+    from gsgs_engine.job import Job
+
+    spec = {"data": data, "settings": settings}
+    if folder.is_dir() and (folder / "job.json").is_file():
+        old = json.loads((folder / "job.json").read_text())
+        if {k: old.get(k) for k in spec} != spec:  # settings changed: start that cell afresh
+            import shutil
+
+            shutil.rmtree(folder)
+    if not (folder / "job.json").is_file():
+        Job.create(folder, "train", data=data, settings=settings)
+    cmd = [python, "-m", "gsgs_engine", "run-job", str(folder)]
+    with open(folder / "bench_log.txt", "a") as log:
+        try:
+            proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=_child_env(), timeout=timeout_s)
+            code = proc.returncode
+        except subprocess.TimeoutExpired:
+            return None, f"timed out after {timeout_s:g} s (log: {folder / 'bench_log.txt'})"
+    metrics = finished_metrics(folder)
+    if metrics is None:
+        tail = (folder / "bench_log.txt").read_text(errors="replace").strip().splitlines()[-3:]
+        return None, f"exit code {code}: " + " | ".join(tail)
+    return metrics, "ok"
+
+
+def mean_std(values: list[float]) -> tuple[float | None, float | None]:
+    """Mean and sample standard deviation (ddof 1; 0 for one value); None when any value is missing."""
+    if not values or any(v is None or not math.isfinite(v) for v in values):
+        return None, None
+    mean = sum(values) / len(values)
+    if len(values) == 1:
+        return mean, 0.0
+    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+
+
+def summarise(records: list[dict]) -> list[dict]:
+    """Records (one per finished cell) -> rows per (protocol, scene, variant) and per (protocol, variant)
+    over scenes (the mean over scenes of each seed's value, then mean ± std over seeds)."""
+    rows = []
+    keyed: dict[tuple, list[dict]] = {}
+    for r in records:
+        keyed.setdefault((r["protocol"], r["scene"], r["variant"]), []).append(r)
+    for (protocol, scene, variant), cells in sorted(keyed.items()):
+        row = {"protocol": protocol, "scene": scene, "variant": variant, "seeds": sorted(c["seed"] for c in cells)}
+        for key in METRIC_KEYS:
+            row[key] = mean_std([c["metrics"].get(key) for c in cells])
+        rows.append(row)
+    by_variant: dict[tuple, dict[int, list[dict]]] = {}
+    for r in records:
+        by_variant.setdefault((r["protocol"], r["variant"]), {}).setdefault(r["seed"], []).append(r)
+    for (protocol, variant), seeds in sorted(by_variant.items()):
+        scenes = {c["scene"] for cells in seeds.values() for c in cells}
+        complete = {s: cells for s, cells in seeds.items() if {c["scene"] for c in cells} == scenes}
+        if len(scenes) < 2 or not complete:
+            continue
+        row = {"protocol": protocol, "scene": "mean", "variant": variant, "seeds": sorted(complete)}
+        for key in METRIC_KEYS:
+            per_seed = []
+            for cells in complete.values():
+                vals = [c["metrics"].get(key) for c in cells]
+                per_seed.append(None if any(v is None for v in vals) else sum(vals) / len(vals))
+            row[key] = mean_std(per_seed)
+        rows.append(row)
+    return rows
+
+
+def _cell(ms: tuple, spec: str) -> str:
+    mean, std = ms
+    return "n/a" if mean is None else f"{format(mean, spec)} ± {format(std, spec)}"
+
+
+def markdown(rows: list[dict], meta: dict) -> str:
+    lines = [f"# Sparse-view benchmark ({meta['date']})", "",
+             "Protocols: LLFF 3 views (images_8 504x378, test every 8th image, train round(linspace) over the rest); "
+             "NeRF-synthetic 8 views (ids 2, 16, 26, 55, 73, 76, 86, 93; test r_0..r_192 step 8; 400x400; white "
+             "background). PSNR / SSIM (3DGS Gaussian window) / LPIPS v0.1 VGG (AlexNet beside it) at those sizes; "
+             "mean ± std over seeds (sample std); train s = the optimisation loop, total s = every phase but "
+             "evaluation (plan, SfM / dense init, training, prior rounds).",
+             f"Command: `{meta['command']}`. Machine: {meta['machine']}.", ""]
+    for protocol in PROTOCOLS:
+        sel = [r for r in rows if r["protocol"] == protocol]
+        if not sel:
+            continue
+        lines += [f"## {protocol}", "",
+                  "| scene | variant | seeds | PSNR | SSIM | LPIPS (VGG) | LPIPS (Alex) | train s | total s | Gaussians |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in sel:
+            lines.append(f"| {r['scene']} | {r['variant']} | {len(r['seeds'])} | {_cell(r['psnr'], '.2f')} | "
+                         f"{_cell(r['ssim'], '.3f')} | {_cell(r['lpips_vgg'], '.3f')} | {_cell(r['lpips_alex'], '.3f')} | "
+                         f"{_cell(r['train_seconds'], '.0f')} | {_cell(r['seconds'], '.0f')} | {_cell(r['num_gaussians'], '.0f')} |")
+        lines.append("")
+    lines += ["Variants (job.json settings, the same for every scene of a protocol):", ""]
+    lines += [f"- `{name}`: `{json.dumps(settings)}`" for name, settings in meta["variants"].items()]
+    return "\n".join(lines) + "\n"
+
+
+def load_variants(spec: str | None) -> dict[str, dict]:
+    """VARIANTS, or a JSON object {name: settings} given inline or as a file path."""
+    from gsgs_engine import GsgsError
+
+    if spec is None:
+        return dict(VARIANTS)
+    text = Path(spec).read_text() if Path(spec).is_file() else spec
+    try:
+        variants = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise GsgsError(f"--variants: not a JSON object or a file holding one ({exc}); "
+                        'e.g. \'{"plain": {"prior": "none"}}\'') from None
+    if not isinstance(variants, dict) or not all(isinstance(v, dict) for v in variants.values()) or not variants:
+        raise GsgsError("--variants: expected a JSON object mapping variant names to settings objects")
+    return variants
+
+
+def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str, dict], seeds: list[int], work: Path,
+        data_root: Path, doc: Path, iters: int | None = None, resolution_scale: float | None = None,
+        timeout_s: float | None = None, command: str = "", log=print) -> list[dict]:
+    from gsgs_engine import GsgsError
+    from gsgs_engine.job import write_json_atomic
+
+    records, failures = [], []
+    plan = []
+    for protocol in protocols:
+        if protocol not in PROTOCOLS:
+            raise GsgsError(f"unknown protocol {protocol!r}; use {', '.join(PROTOCOLS)}")
+        for scene in PROTOCOLS[protocol]["scenes"] if scenes is None else [s for s in scenes
+                                                                           if s in PROTOCOLS[protocol]["scenes"]]:
+            path = data_root / scene
+            if not path.is_dir():
+                raise GsgsError(f"{path}: scene folder absent; pass --data-root (the folder holding {scene})")
+            for variant, settings in variants.items():
+                for seed in seeds:
+                    plan.append((protocol, scene, path, variant, settings, seed))
+    if not plan:
+        raise GsgsError(f"no cells: scenes {scenes} are in none of the protocols {protocols}")
+    t_start = time.perf_counter()
+    for i, (protocol, scene, path, variant, settings, seed) in enumerate(plan):
+        folder = cell_dir(work, protocol, scene, variant, seed)
+        data, job_settings = cell_spec(protocol, path, settings, seed, iters, resolution_scale)
+        metrics = finished_metrics(folder)
+        old = json.loads((folder / "job.json").read_text()) if (folder / "job.json").is_file() else {}
+        if metrics is not None and old.get("settings") == job_settings and old.get("data") == data:
+            log(f"[{i + 1}/{len(plan)}] {protocol}/{scene}/{variant}/seed {seed}: done before, skipped")
+        else:
+            log(f"[{i + 1}/{len(plan)}] {protocol}/{scene}/{variant}/seed {seed}: training ({folder}) ...")
+            metrics, message = run_cell(folder, data, job_settings, timeout_s)
+            if metrics is None:
+                failures.append(f"{protocol}/{scene}/{variant}/seed {seed}: {message}")
+                log(f"    failed: {message}")
+                continue
+            log(f"    PSNR {metrics['psnr']:.2f}, SSIM {metrics['ssim']:.3f}, LPIPS(VGG) {metrics.get('lpips_vgg')}, "
+                f"{metrics['train_seconds']:.0f} s, {metrics['num_gaussians']} Gaussians")
+        records.append({"protocol": protocol, "scene": scene, "variant": variant, "seed": seed,
+                        "folder": str(folder), "settings": job_settings,
+                        "metrics": cell_numbers(metrics),
+                        "init": metrics.get("init"), "lpips_reason": metrics.get("lpips_reason")})
+    rows = summarise(records)
+    meta = {"date": time.strftime("%Y-%m-%d"), "command": command or "gsgs bench sparse",
+            "machine": f"{os.cpu_count()} CPU cores" + _gpu_note(), "variants": variants,
+            "seconds": round(time.perf_counter() - t_start, 1), "failures": failures}
+    doc.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(doc.with_suffix(".json"), {"meta": meta, "rows": rows, "cells": records})
+    doc.with_suffix(".md").write_text(markdown(rows, meta))
+    log(f"wrote {doc.with_suffix('.md')} and {doc.with_suffix('.json')} ({len(records)} cells, "
+        f"{len(failures)} failed)")
+    return rows
+
+
+def _gpu_note() -> str:
+    try:
+        import torch
+    except ImportError:
+        return ""
+    return f", {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else ", no GPU"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--protocol", action="append", choices=sorted(PROTOCOLS), default=None,
+                        help="llff and/or blender (default both)")
+    parser.add_argument("--scene", action="append", default=None, help="only these scenes (e.g. llff_flower)")
+    parser.add_argument("--variants", default=None,
+                        help='JSON {name: settings} or a file holding it (default: ' + ", ".join(VARIANTS) + ")")
+    parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0 .. N-1; default 3)")
+    parser.add_argument("--iters", type=int, default=None, help="override every variant's iterations")
+    parser.add_argument("--resolution-scale", type=float, default=None,
+                        help="override the protocol's resolution (smoke tests only: the numbers stop being comparable)")
+    parser.add_argument("--data-root", type=Path, default=REPO_ROOT.parent / "shared" / "data")
+    parser.add_argument("--work", type=Path, default=Path("bench_sparse"), help="cell folders (resumable)")
+    parser.add_argument("--doc", type=Path, default=REPO_ROOT / "docs" / "sparse_bench.md",
+                        help="the markdown table; the JSON goes beside it")
+    parser.add_argument("--timeout", type=float, default=None, help="seconds per cell")
+
+
+def run(args: argparse.Namespace) -> int:
+    """`gsgs bench sparse ...` (gsgs_engine.cli raises GsgsError as one `gsgs: error:` line)."""
+    from gsgs_engine import GsgsError
+
+    if args.seeds < 1:
+        raise GsgsError("--seeds must be at least 1")
+    run_bench(args.protocol or list(PROTOCOLS), args.scene, load_variants(args.variants), list(range(args.seeds)),
+              args.work, args.data_root, args.doc, args.iters, args.resolution_scale, args.timeout,
+              command="gsgs bench sparse " + " ".join(getattr(args, "_argv", None) or sys.argv[1:]))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m gsgs_engine.bench.sparse ...` (the same as `gsgs bench sparse ...`)."""
+    from gsgs_engine import GsgsError
+
+    parser = argparse.ArgumentParser(prog="gsgs bench sparse", description=__doc__.split("\n")[0])
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    args._argv = argv if argv is not None else sys.argv[1:]
+    try:
+        return run(args)
+    except GsgsError as exc:
+        print(f"gsgs: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,101 @@
+"""Dense (MVS) initialisation: time and accuracy on the sparse-view protocols' training views.
+
+`python scripts/mvs_check.py [--data-root ../shared/data]` prints one line per scene:
+- seconds of the MVS itself (SfM triangulation, which the trainer runs anyway, timed apart);
+- agreement with the SfM points of the same training views: for each SfM point visible in a training
+  view, the nearest MVS depth at its pixel (z-buffer of the fused points) vs the SfM depth;
+- NeRF-synthetic only (no ground-truth depth is released): silhouette consistency, the fraction of
+  points that land on the object (alpha >= 0.5) in every one of the 25 held-out test views they project
+  into. A point off the surface in depth falls outside some silhouette.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def sfm_agreement(points: np.ndarray, sfm: np.ndarray, views) -> dict:
+    errs = []
+    for v in views:
+        c = v.camera
+        uv, z = c.project(points.astype(np.float64))
+        ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < c.width) & (uv[:, 1] >= 0) & (uv[:, 1] < c.height)
+        zbuf = np.full((c.height, c.width), np.inf)
+        np.minimum.at(zbuf, (uv[ok, 1].astype(int), uv[ok, 0].astype(int)), z[ok])
+        uvs, zs = c.project(sfm.astype(np.float64))
+        oks = (zs > 0) & (uvs[:, 0] >= 0) & (uvs[:, 0] < c.width) & (uvs[:, 1] >= 0) & (uvs[:, 1] < c.height)
+        zm = zbuf[uvs[oks, 1].astype(int), uvs[oks, 0].astype(int)]
+        found = np.isfinite(zm)
+        errs.append(np.abs(zm[found] - zs[oks][found]) / zs[oks][found])
+    e = np.concatenate(errs) if errs else np.zeros(0)
+    if len(e) == 0:
+        return {"n": 0}
+    return {"n": int(len(e)), "median_rel_err": float(np.median(e)), "within_2pct": float((e < 0.02).mean()),
+            "within_5pct": float((e < 0.05).mean())}
+
+
+def silhouette_consistency(points: np.ndarray, test_views) -> float:
+    inside_all = np.ones(len(points), dtype=bool)
+    for v in test_views:
+        alpha = v.alpha()
+        c = v.camera
+        uv, z = c.project(points.astype(np.float64))
+        ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < c.width) & (uv[:, 1] >= 0) & (uv[:, 1] < c.height)
+        fg = np.zeros(len(points), dtype=bool)
+        fg[ok] = alpha[uv[ok, 1].astype(int), uv[ok, 0].astype(int)] >= 0.5
+        inside_all &= fg | ~ok
+    return float(inside_all.mean())
+
+
+def check(name: str, scene, log) -> dict:
+    from gsgs_engine.gaussians import scene_bounds_from_cameras
+    from gsgs_engine.init.mvs import dense_points
+    from gsgs_engine.sfm import triangulate_known_poses
+
+    t0 = time.perf_counter()
+    sfm, _ = triangulate_known_poses(scene.train)
+    sfm = np.asarray(sfm, dtype=np.float32).reshape(-1, 3)
+    t_sfm = time.perf_counter() - t0
+    bounds = scene_bounds_from_cameras([v.camera for v in scene.train], scene.near, scene.far)
+    t0 = time.perf_counter()
+    dense = dense_points(scene.train, sparse_points=sfm if len(sfm) else None, near=scene.near, far=scene.far,
+                         bounds=bounds, log=log)
+    t_mvs = time.perf_counter() - t0
+    first = scene.train[0].camera
+    row = {"scene": name, "views": len(scene.train), "size": [first.width, first.height],
+           "work_size": dense.stats["views"][0]["size"] if dense.stats["views"] else None,
+           "sfm_seconds": round(t_sfm, 1), "mvs_seconds": round(t_mvs, 1), "sfm_points": int(len(sfm)),
+           "mvs_points": int(len(dense.points)), "method": dense.method,
+           "vs_sfm": sfm_agreement(dense.points, sfm, scene.train) if len(sfm) else None}
+    if scene.has_alpha:
+        row["silhouette_consistent_mvs"] = silhouette_consistency(dense.points, scene.test)
+        row["silhouette_consistent_sfm"] = silhouette_consistency(sfm, scene.test) if len(sfm) else None
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data-root", type=Path, default=Path(__file__).resolve().parents[1].parent / "shared" / "data")
+    parser.add_argument("--scenes", default="llff_flower,llff_horns,blender_lego,blender_chair")
+    args = parser.parse_args()
+    import torch
+
+    from gsgs_engine.bench.sparse import BLENDER_TRAIN_IDS
+    from gsgs_engine.io.loader import load_scene
+
+    torch.set_num_threads(2)
+    for name in args.scenes.split(","):
+        if name.startswith("llff"):
+            scene = load_scene(args.data_root / name, train_views=3)
+        else:
+            scene = load_scene(args.data_root / name, train_ids=BLENDER_TRAIN_IDS, resolution_scale=0.5)
+        print(json.dumps(check(name, scene, log=lambda m: None)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

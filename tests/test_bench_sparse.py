@@ -1,0 +1,67 @@
+"""`gsgs bench sparse`: statistics over seeds and scenes, variants, and a tiny real resumable run."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from gsgs_engine import GsgsError
+from gsgs_engine.bench.sparse import (BLENDER_TRAIN_IDS, cell_spec, load_variants, main, mean_std, summarise)
+from tests.conftest import shared_scene
+
+
+def record(scene: str, variant: str, seed: int, psnr: float, protocol: str = "llff") -> dict:
+    return {"protocol": protocol, "scene": scene, "variant": variant, "seed": seed,
+            "metrics": {"psnr": psnr, "ssim": 0.5, "lpips_vgg": 0.3, "lpips_alex": None, "train_seconds": 10.0,
+                        "seconds": 12.0, "num_gaussians": 1000}}
+
+
+def test_mean_and_sample_std():
+    assert mean_std([1.0, 2.0, 3.0]) == (2.0, 1.0)
+    assert mean_std([4.0]) == (4.0, 0.0)
+    assert mean_std([1.0, None]) == (None, None) and mean_std([]) == (None, None)
+
+
+def test_summary_per_scene_and_protocol_mean_over_complete_seeds():
+    recs = [record("a", "v", 0, 20.0), record("a", "v", 1, 22.0), record("b", "v", 0, 16.0),
+            record("b", "v", 1, 18.0), record("a", "v", 2, 30.0)]  # seed 2 lacks scene b: not in the mean row
+    rows = {(r["scene"], r["variant"]): r for r in summarise(recs)}
+    assert rows[("a", "v")]["psnr"] == mean_std([20.0, 22.0, 30.0]) and rows[("a", "v")]["seeds"] == [0, 1, 2]
+    mean_row = rows[("mean", "v")]
+    assert mean_row["seeds"] == [0, 1] and mean_row["psnr"] == mean_std([18.0, 20.0])
+    assert mean_row["lpips_alex"] == (None, None)  # missing values are n/a, never a partial mean
+
+
+def test_protocol_cells_and_variants(tmp_path):
+    data, settings = cell_spec("blender", tmp_path, {"prior": "none", "iters": 500}, seed=2, iters=None,
+                               resolution_scale=None)
+    assert data["train_ids"] == BLENDER_TRAIN_IDS and "r_75" not in data["train_ids"]
+    assert settings["resolution_scale"] == 0.5 and settings["background"] == [1.0, 1.0, 1.0]
+    assert settings["seed"] == 2 and settings["iters"] == 500
+    data, settings = cell_spec("llff", tmp_path, {}, seed=0, iters=20, resolution_scale=None)
+    assert data["train_views"] == 3 and settings["resolution_scale"] == 1.0 and settings["iters"] == 20
+    assert load_variants('{"x": {"prior": "none"}}') == {"x": {"prior": "none"}}
+    with pytest.raises(GsgsError, match="--variants"):
+        load_variants("[1, 2]")
+
+
+@pytest.mark.slow
+def test_tiny_real_run_is_resumable(tmp_path, capsys):
+    root = shared_scene("blender_chair").parent
+    argv = ["--protocol", "blender", "--scene", "blender_chair", "--seeds", "1", "--iters", "10",
+            "--resolution-scale", "0.08", "--data-root", str(root), "--work", str(tmp_path / "work"),
+            "--doc", str(tmp_path / "doc" / "sparse.md"), "--variants", '{"plain": {"prior": "none"}}']
+    assert main(argv) == 0
+    first = json.loads((tmp_path / "doc" / "sparse.json").read_text())
+    cell = first["cells"][0]
+    assert cell["metrics"]["psnr"] > 0 and cell["metrics"]["num_gaussians"] > 0
+    job = json.loads((tmp_path / "work" / "blender" / "blender_chair" / "plain" / "seed0" / "job.json").read_text())
+    assert job["data"]["train_ids"] == BLENDER_TRAIN_IDS and job["settings"]["seed"] == 0
+    table = (tmp_path / "doc" / "sparse.md").read_text()
+    assert "| blender_chair | plain | 1 |" in table
+    capsys.readouterr()
+    assert main(argv) == 0  # everything finished: nothing trains again
+    assert "done before, skipped" in capsys.readouterr().out
+    again = json.loads((tmp_path / "doc" / "sparse.json").read_text())
+    assert again["cells"][0]["metrics"] == cell["metrics"]
