@@ -1,0 +1,91 @@
+"""The splat material: a per-ray Gaussian alpha on each proxy cube (Cycles and EEVEE).
+
+A proxy cube (node_groups.py) spans +-1 in object coordinates, which is +-`gsgs_proxy`
+dilated sigmas along the Gaussian's axes. For the ray that hits the front face at object
+point p with object-space direction d, the squared Mahalanobis distance of the ray's closest
+approach to the Gaussian's mean is
+
+    m^2 = s^2 (|p|^2 - (p . d)^2 / |d|^2),   s = gsgs_proxy,
+
+and the splat's alpha is the engine's (gsgs_engine/render/reference.py):
+alpha = min(0.99, opacity exp(-m^2 / 2)), zero below 1/255. The colour `gsgs_rgb` is already
+linear and view-dependent (from the geometry nodes). Back faces are fully transparent, so a
+ray crossing a proxy counts the Gaussian once.
+"""
+
+from __future__ import annotations
+
+import bpy
+
+from .node_math import NodeMath, output
+
+MATERIAL_NAME = "GS-GS Splat"
+MATERIAL_VERSION = 3
+COLOR_ATTRIBUTE = "gsgs_rgb"
+PROXY_ATTRIBUTE = "gsgs_proxy"
+ALPHA_MAX = 0.99  # gsgs_engine.render.reference.ALPHA_MAX (checked by a test)
+ALPHA_MIN = 1.0 / 255.0  # gsgs_engine.render.reference.ALPHA_MIN
+
+
+def _instancer_attribute(nm: NodeMath, name: str):
+    node = nm.node("ShaderNodeAttribute", attribute_type="INSTANCER", attribute_name=name)
+    return node
+
+
+def gaussian_alpha(nm: NodeMath):
+    """The alpha socket: the Gaussian's opacity at the ray's closest approach, cut and capped as the engine."""
+    coords = nm.node("ShaderNodeTexCoord")
+    p = output(coords, "Object")
+    geometry = nm.node("ShaderNodeNewGeometry")
+    to_object = nm.node("ShaderNodeVectorTransform", vector_type="VECTOR", convert_from="WORLD",
+                        convert_to="OBJECT")
+    nm.tree.links.new(output(geometry, "Incoming"), to_object.inputs["Vector"])
+    d = to_object.outputs["Vector"]
+    pp = nm.vmath("DOT_PRODUCT", p, p)
+    pd = nm.vmath("DOT_PRODUCT", p, d)
+    dd = nm.vmath("DOT_PRODUCT", d, d)
+    size = output(_instancer_attribute(nm, PROXY_ATTRIBUTE), "Factor")
+    m2 = nm.mul(nm.mul(size, size), nm.math("MAXIMUM", nm.sub(pp, nm.div(nm.mul(pd, pd), dd)), 0.0))
+    opacity = output(_instancer_attribute(nm, "opacity"), "Factor")
+    alpha = nm.math("MINIMUM", nm.mul(opacity, nm.math("EXPONENT", nm.mul(m2, -0.5))), ALPHA_MAX)
+    kept = nm.math("GREATER_THAN", alpha, ALPHA_MIN - 1e-7)  # alpha >= 1/255, as the engine
+    front = nm.sub(1.0, output(geometry, "Backfacing"))
+    return nm.mul(alpha, nm.mul(kept, front))
+
+
+def splat_material() -> bpy.types.Material:
+    """Emission of the splat's linear colour mixed with transparency by the per-ray Gaussian alpha."""
+    mat = bpy.data.materials.get(MATERIAL_NAME)
+    if mat is not None and mat.get("gsgs_version") == MATERIAL_VERSION:
+        return mat
+    if mat is None:
+        mat = bpy.data.materials.new(MATERIAL_NAME)
+    mat["gsgs_version"] = MATERIAL_VERSION
+    if hasattr(mat, "use_nodes") and not mat.use_nodes:
+        mat.use_nodes = True
+    tree = mat.node_tree
+    tree.nodes.clear()
+    nm = NodeMath(tree, -900, 600)
+    alpha = gaussian_alpha(nm)
+    color = _instancer_attribute(nm, COLOR_ATTRIBUTE)
+    emission = nm.node("ShaderNodeEmission")
+    tree.links.new(output(color, "Color"), emission.inputs["Color"])
+    emission.inputs["Strength"].default_value = 1.0
+    transparent = nm.node("ShaderNodeBsdfTransparent")
+    mix = nm.node("ShaderNodeMixShader")
+    tree.links.new(alpha, mix.inputs[0])
+    tree.links.new(transparent.outputs["BSDF"], mix.inputs[1])
+    tree.links.new(emission.outputs["Emission"], mix.inputs[2])
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    out.location = (300, 0)
+    tree.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    # Splats overlap heavily: blended transparency (EEVEE), no light emitted onto other objects
+    # (Cycles would otherwise build a light tree over every proxy face).
+    mat.surface_render_method = "BLENDED"
+    if hasattr(mat, "use_transparency_overlap"):
+        mat.use_transparency_overlap = True
+    mat.use_backface_culling = True
+    if hasattr(mat, "cycles") and hasattr(mat.cycles, "emission_sampling"):
+        mat.cycles.emission_sampling = "NONE"
+    mat.diffuse_color = (0.8, 0.8, 0.8, 1.0)
+    return mat
