@@ -21,7 +21,13 @@ from __future__ import annotations
 TRANSPARENT_BOUNCES = 256  # measured enough on lego_200 and the demo (docs/blender_fidelity.md)
 
 
-COLOUR_MODES = ("EXACT", "LINEAR")
+COLOUR_ITEMS = [
+    ("EXACT", "Exact (Raw)", "Raw view transform, splat colours kept as the engine's display values: blends "
+                             "exactly as the engine (best fidelity; other lit objects look flat)"),
+    ("LINEAR", "Linear (Standard)", "Standard view transform, splat colours converted to scene-linear: fits "
+                                    "next to other objects; soft splat edges blend in linear light"),
+]
+COLOUR_MODES = tuple(item[0] for item in COLOUR_ITEMS)
 DEFAULT_COLOUR_MODE = "EXACT"
 
 

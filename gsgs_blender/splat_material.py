@@ -61,7 +61,7 @@ def splat_material() -> bpy.types.Material:
     if mat is None:
         mat = bpy.data.materials.new(MATERIAL_NAME)
     mat["gsgs_version"] = MATERIAL_VERSION
-    if hasattr(mat, "use_nodes") and not mat.use_nodes:
+    if mat.node_tree is None:  # Blender < 5 creates the tree only on request
         mat.use_nodes = True
     tree = mat.node_tree
     tree.nodes.clear()
