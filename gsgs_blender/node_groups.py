@@ -9,10 +9,17 @@ Per point, for the scene's active (render) camera, exactly as the engine's raste
     variance 0.3 (z / f)^2 (z: camera depth of the mean, f: focal length in pixels) to the
     Gaussian projects to the same 0.3 px^2 (to first order), so each scale becomes
     sqrt(scale^2 + 0.3 (z / f)^2);
-  * proxy: a cube of half-size `Size` dilated sigmas along the Gaussian's axes, carrying
-    `opacity`, `gsgs_rgb` (linear colour) and `gsgs_proxy` (the half-size in sigmas) to the
-    instance domain, where the splat material (splat_material.py) computes the per-ray
-    Gaussian alpha.
+  * renders: the engine's 2D Gaussian itself. Each splat becomes one square facing the render
+    camera, in the plane through its mean parallel to the image plane, carrying the EWA conic
+    (inverse of J W Sigma W^T J^T + 0.3 px^2, in that plane's units) as `gsgs_conic`; the
+    camera-plane material (splat_material.camera_plane_material) evaluates the engine's
+    alpha = min(0.99, o exp(-d^T conic d / 2)) there. A ray meets these planes in the order of
+    their camera depth, which is the engine's sort order, once per splat. The square spans the
+    distance where the alpha falls to 1/255 along the major axis;
+  * viewport (and renders with `Exact Projection` off): a cube of half-size `Size` dilated sigmas
+    along the Gaussian's axes, carrying `gsgs_proxy` (the half-size in sigmas); the splat
+    material computes the Gaussian alpha at each ray's closest approach. It looks right from any
+    view (the camera planes only face the render camera).
 Viewport level of detail: the viewport keeps the `Display Ratio` most visible splats (the
 `gsgs_lod_rank` attribute the import writes: rank by opacity x size); renders draw all.
 """
@@ -30,6 +37,8 @@ GROUP_VERSION = 3  # bump when the graph changes so old files rebuild it
 LOW_PASS_DILATION = 0.3  # px^2, gsgs_engine.render.project.LOW_PASS_DILATION (checked by a test)
 DEFAULT_SIZE = 3.0  # proxy half-size in sigmas (docs/blender_fidelity.md: measured against 2 and 2.5)
 LOD_RANK = "gsgs_lod_rank"
+FRUSTUM_SLACK = 1.3  # gsgs_engine.render.project.FRUSTUM_SLACK
+NEAR = 0.01  # gsgs_engine.render.project.project_gaussians' default near plane
 SH_REST_COUNT = 15  # degree 3
 
 # Real SH basis of degree 0-3 with the 3DGS constants and signs (gsgs_engine/render/sh.py).
@@ -116,7 +125,11 @@ def splat_node_group() -> bpy.types.GeometryNodeTree:
         "on: colours converted from the engine's sRGB values to scene-linear (for the Standard view "
         "transform; blending then happens in linear light). Off: colours kept as display values, which "
         "blend exactly as the engine does under the Raw view transform (the import's render set-up sets it)"))
+    _socket(group, "Exact Projection", "INPUT", "NodeSocketBool", True, description=(
+        "renders draw each splat as the engine's projected 2D Gaussian on a plane facing the render camera "
+        "(exact sort order and shape); off: the viewport's 3D proxies render too"))
     _socket(group, "Material", "INPUT", "NodeSocketMaterial")
+    _socket(group, "Camera Material", "INPUT", "NodeSocketMaterial")
     _socket(group, "Geometry", "OUTPUT", "NodeSocketGeometry")
 
     nodes, links = group.nodes, group.links
@@ -182,8 +195,98 @@ def splat_node_group() -> bpy.types.GeometryNodeTree:
     links.new(_named(nm, "rotation", "QUATERNION"), instance.inputs["Rotation"])
     links.new(proxy_scale, instance.inputs["Scale"])
     # Point attributes (gsgs_rgb, opacity, gsgs_proxy, ...) propagate to the instance domain by themselves.
-    links.new(instance.outputs["Instances"], gout.inputs["Geometry"])
+
+    planes = camera_planes(nm, gin, store_rgb.outputs["Geometry"], cam_obj, proj, offset, focal_px)
+    use_cubes = nm.node("FunctionNodeBooleanMath", operation="NIMPLY")  # viewport, or not exact
+    links.new(gin.outputs["Exact Projection"], use_cubes.inputs[0])
+    links.new(output(is_viewport, "Is Viewport"), use_cubes.inputs[1])
+    choose_planes = nm.node("GeometryNodeSwitch", input_type="GEOMETRY")
+    links.new(use_cubes.outputs[0], choose_planes.inputs["Switch"])
+    links.new(instance.outputs["Instances"], choose_planes.inputs["False"])
+    links.new(planes, choose_planes.inputs["True"])
+    links.new(choose_planes.outputs[0], gout.inputs["Geometry"])
     return group
+
+
+def camera_planes(nm: NodeMath, gin, points, cam_obj, proj, offset, focal_px):
+    """Points -> one camera-facing square per splat carrying the engine's EWA conic (project.py).
+
+    In camera axes (x right, y down, z forward) a Gaussian axis a_i = sigma_i R e_i has components
+    (ax, ay, az); the projection's Jacobian at the mean (tx = x/z, ty = y/z, clamped to 1.3x the
+    half-field as the engine does) maps it onto the plane at depth z as (ax - tx az, ay - ty az), so
+    in that plane's world units the covariance is sum_i v_i v_i^T + 0.3 (z / f)^2 I.
+    """
+    links = nm.tree.links
+    rot_cam = output(cam_obj, "Rotation")
+
+    def rotate(vector, rotation):
+        node = nm.node("FunctionNodeRotateVector")
+        node.inputs["Vector"].default_value = vector
+        links.new(rotation, node.inputs["Rotation"])
+        return output(node, "Vector")
+
+    right, up, back = rotate((1.0, 0.0, 0.0), rot_cam), rotate((0.0, 1.0, 0.0), rot_cam), rotate((0.0, 0.0, 1.0), rot_cam)
+    down = nm.vmath("SCALE", up, scale=-1.0)
+    forward = nm.vmath("SCALE", back, scale=-1.0)
+    x = nm.vmath("DOT_PRODUCT", offset, right)
+    y = nm.vmath("DOT_PRODUCT", offset, down)
+    z = nm.vmath("DOT_PRODUCT", offset, forward)
+    half_x = nm.div(1.0, output(proj, "Column 1 Row 1"))  # tan of the half field of view (centred camera)
+    half_y = nm.div(1.0, output(proj, "Column 2 Row 2"))
+    tx = nm.math("MINIMUM", nm.math("MAXIMUM", nm.div(x, z), nm.mul(half_x, -FRUSTUM_SLACK)),
+                 nm.mul(half_x, FRUSTUM_SLACK))
+    ty = nm.math("MINIMUM", nm.math("MAXIMUM", nm.div(y, z), nm.mul(half_y, -FRUSTUM_SLACK)),
+                 nm.mul(half_y, FRUSTUM_SLACK))
+    quat = _named(nm, "rotation", "QUATERNION")
+    scale = _named(nm, "scale", "FLOAT_VECTOR")
+    sx, sy, sz = nm.separate(scale)
+    pixel = nm.div(z, focal_px)
+    dil = nm.mul(gin.outputs["Dilation"], nm.mul(pixel, pixel))
+    a_cov, b_cov, c_cov = dil, None, dil
+    for axis, sigma in (((1.0, 0.0, 0.0), sx), ((0.0, 1.0, 0.0), sy), ((0.0, 0.0, 1.0), sz)):
+        a_i = nm.vmath("SCALE", rotate(axis, quat), scale=sigma)
+        az = nm.vmath("DOT_PRODUCT", a_i, forward)
+        vx = nm.sub(nm.vmath("DOT_PRODUCT", a_i, right), nm.mul(tx, az))
+        vy = nm.sub(nm.vmath("DOT_PRODUCT", a_i, down), nm.mul(ty, az))
+        a_cov = nm.add(a_cov, nm.mul(vx, vx))
+        b_cov = nm.mul(vx, vy) if b_cov is None else nm.add(b_cov, nm.mul(vx, vy))
+        c_cov = nm.add(c_cov, nm.mul(vy, vy))
+    det = nm.sub(nm.mul(a_cov, c_cov), nm.mul(b_cov, b_cov))
+    conic = nm.combine(nm.div(c_cov, det), nm.div(nm.mul(b_cov, -1.0), det), nm.div(a_cov, det))
+    mid = nm.mul(nm.add(a_cov, c_cov), 0.5)
+    lam_max = nm.add(mid, nm.math("SQRT", nm.math("MAXIMUM", nm.sub(nm.mul(mid, mid), det), 0.0)))
+    # Half-size where opacity x exp(-r^2 / 2 lambda) reaches 1/255 (0 for a splat that never does).
+    opacity = _named(nm, "opacity", "FLOAT")
+    reach = nm.mul(2.0, nm.math("LOGARITHM", nm.math("MAXIMUM", nm.mul(opacity, 255.0), 1.0), 2.718281828459045))
+    radius = nm.math("SQRT", nm.mul(reach, lam_max))
+
+    keep = nm.math("GREATER_THAN", z, NEAR)  # the engine culls means closer than its near plane
+    delete = nm.node("GeometryNodeDeleteGeometry", domain="POINT")
+    links.new(points, delete.inputs["Geometry"])
+    links.new(nm.math("LESS_THAN", keep, 0.5), delete.inputs["Selection"])
+    store_conic = nm.node("GeometryNodeStoreNamedAttribute", data_type="FLOAT_VECTOR", domain="POINT")
+    store_conic.inputs["Name"].default_value = splat_material.CONIC_ATTRIBUTE
+    links.new(delete.outputs["Geometry"], store_conic.inputs["Geometry"])
+    links.new(conic, input_socket(store_conic, "Value", "VECTOR"))
+    store_radius = nm.node("GeometryNodeStoreNamedAttribute", data_type="FLOAT", domain="POINT")
+    store_radius.inputs["Name"].default_value = splat_material.PROXY_ATTRIBUTE
+    links.new(store_conic.outputs["Geometry"], store_radius.inputs["Geometry"])
+    links.new(radius, input_socket(store_radius, "Value", "VALUE"))
+
+    square = nm.node("GeometryNodeMeshGrid")
+    square.inputs["Size X"].default_value = 2.0  # +-1 object coordinates, scaled by the radius
+    square.inputs["Size Y"].default_value = 2.0
+    square.inputs["Vertices X"].default_value = 2
+    square.inputs["Vertices Y"].default_value = 2
+    set_mat = nm.node("GeometryNodeSetMaterial")
+    links.new(square.outputs["Mesh"], set_mat.inputs["Geometry"])
+    links.new(gin.outputs["Camera Material"], set_mat.inputs["Material"])
+    instance = nm.node("GeometryNodeInstanceOnPoints")
+    links.new(store_radius.outputs["Geometry"], instance.inputs["Points"])
+    links.new(set_mat.outputs["Geometry"], instance.inputs["Instance"])
+    links.new(rot_cam, instance.inputs["Rotation"])
+    links.new(nm.combine(radius, radius, 1.0), instance.inputs["Scale"])
+    return instance.outputs["Instances"]
 
 
 def add_splat_modifier(obj, display_ratio: float = 1.0, size: float = DEFAULT_SIZE, scene=None):
@@ -194,6 +297,7 @@ def add_splat_modifier(obj, display_ratio: float = 1.0, size: float = DEFAULT_SI
     set_modifier_input(mod, "Display Ratio", float(display_ratio))
     set_modifier_input(mod, "Size", float(size))
     set_modifier_input(mod, "Material", splat_material.splat_material())
+    set_modifier_input(mod, "Camera Material", splat_material.camera_plane_material())
     drive_render_width(obj, mod, scene or bpy.context.scene)
     return mod
 

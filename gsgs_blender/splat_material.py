@@ -1,5 +1,13 @@
-"""The splat material: a per-ray Gaussian alpha on each proxy cube (Cycles and EEVEE).
+"""The splat materials: the engine's Gaussian alpha on each splat's proxy (Cycles and EEVEE).
 
+Renders (camera_plane_material): each splat is a square facing the render camera through its mean
+(node_groups.camera_planes), +-1 in object coordinates = +-`gsgs_proxy` world units along the
+camera's right and up axes. With d = gsgs_proxy (x, -y) (camera axes: y points down) and the EWA
+conic (A, B, C) = `gsgs_conic` in the same units, the alpha is the engine's
+(gsgs_engine/render/reference.py): min(0.99, opacity exp(-(A dx^2 + C dy^2) / 2 - B dx dy)),
+zero below 1/255.
+
+Viewport (splat_material):
 A proxy cube (node_groups.py) spans +-1 in object coordinates, which is +-`gsgs_proxy`
 dilated sigmas along the Gaussian's axes. For the ray that hits the front face at object
 point p with object-space direction d, the squared Mahalanobis distance of the ray's closest
@@ -20,6 +28,8 @@ import bpy
 from .node_math import NodeMath, output
 
 MATERIAL_NAME = "GS-GS Splat"
+CAMERA_MATERIAL_NAME = "GS-GS Splat (render camera)"
+CONIC_ATTRIBUTE = "gsgs_conic"
 MATERIAL_VERSION = 3
 COLOR_ATTRIBUTE = "gsgs_rgb"
 PROXY_ATTRIBUTE = "gsgs_proxy"
@@ -53,20 +63,45 @@ def gaussian_alpha(nm: NodeMath):
     return nm.mul(alpha, nm.mul(kept, front))
 
 
+def conic_alpha(nm: NodeMath):
+    """The alpha socket of a camera-facing square: the engine's 2D Gaussian, cut and capped as the engine."""
+    p = output(nm.node("ShaderNodeTexCoord"), "Object")
+    px, py, _ = nm.separate(p)
+    size = output(_instancer_attribute(nm, PROXY_ATTRIBUTE), "Factor")
+    dx = nm.mul(px, size)
+    dy = nm.mul(py, nm.mul(size, -1.0))
+    ca, cb, cc = nm.separate(output(_instancer_attribute(nm, CONIC_ATTRIBUTE), "Vector"))
+    quad = nm.add(nm.mul(ca, nm.mul(dx, dx)), nm.mul(cc, nm.mul(dy, dy)))
+    power = nm.sub(nm.mul(quad, -0.5), nm.mul(cb, nm.mul(dx, dy)))
+    opacity = output(_instancer_attribute(nm, "opacity"), "Factor")
+    alpha = nm.math("MINIMUM", nm.mul(opacity, nm.math("EXPONENT", nm.math("MINIMUM", power, 0.0))), ALPHA_MAX)
+    kept = nm.math("GREATER_THAN", alpha, ALPHA_MIN - 1e-7)
+    return nm.mul(alpha, kept)
+
+
 def splat_material() -> bpy.types.Material:
-    """Emission of the splat's linear colour mixed with transparency by the per-ray Gaussian alpha."""
-    mat = bpy.data.materials.get(MATERIAL_NAME)
+    """Viewport proxies: the splat's colour mixed with transparency by the per-ray Gaussian alpha."""
+    return _material(MATERIAL_NAME, gaussian_alpha, backface_culling=True)
+
+
+def camera_plane_material() -> bpy.types.Material:
+    """Render squares facing the camera: the splat's colour mixed with transparency by the engine's 2D alpha."""
+    return _material(CAMERA_MATERIAL_NAME, conic_alpha, backface_culling=False)
+
+
+def _material(name: str, alpha_fn, backface_culling: bool) -> bpy.types.Material:
+    mat = bpy.data.materials.get(name)
     if mat is not None and mat.get("gsgs_version") == MATERIAL_VERSION:
         return mat
     if mat is None:
-        mat = bpy.data.materials.new(MATERIAL_NAME)
+        mat = bpy.data.materials.new(name)
     mat["gsgs_version"] = MATERIAL_VERSION
     if mat.node_tree is None:  # Blender < 5 creates the tree only on request
         mat.use_nodes = True
     tree = mat.node_tree
     tree.nodes.clear()
     nm = NodeMath(tree, -900, 600)
-    alpha = gaussian_alpha(nm)
+    alpha = alpha_fn(nm)
     color = _instancer_attribute(nm, COLOR_ATTRIBUTE)
     emission = nm.node("ShaderNodeEmission")
     tree.links.new(output(color, "Color"), emission.inputs["Color"])
@@ -84,7 +119,7 @@ def splat_material() -> bpy.types.Material:
     mat.surface_render_method = "BLENDED"
     if hasattr(mat, "use_transparency_overlap"):
         mat.use_transparency_overlap = True
-    mat.use_backface_culling = True
+    mat.use_backface_culling = backface_culling
     if hasattr(mat, "cycles") and hasattr(mat.cycles, "emission_sampling"):
         mat.cycles.emission_sampling = "NONE"
     mat.diffuse_color = (0.8, 0.8, 0.8, 1.0)
