@@ -35,7 +35,8 @@ GROUP_NAME = "GS-GS Splats"
 MODIFIER_NAME = "GS-GS Splats"
 GROUP_VERSION = 3  # bump when the graph changes so old files rebuild it
 LOW_PASS_DILATION = 0.3  # px^2, gsgs_engine.render.project.LOW_PASS_DILATION (checked by a test)
-DEFAULT_SIZE = 3.0  # proxy half-size in sigmas (docs/blender_fidelity.md: measured against 2 and 2.5)
+# Viewport proxy half-size in sigmas: the engine's own 3-sigma screen radius (renders size each splat exactly).
+DEFAULT_SIZE = 3.0
 LOD_RANK = "gsgs_lod_rank"
 FRUSTUM_SLACK = 1.3  # gsgs_engine.render.project.FRUSTUM_SLACK
 NEAR = 0.01  # gsgs_engine.render.project.project_gaussians' default near plane
@@ -114,8 +115,8 @@ def splat_node_group() -> bpy.types.GeometryNodeTree:
     _socket(group, "Display Ratio", "INPUT", "NodeSocketFloat", 1.0, 0.0, 1.0,
             "fraction of the splats drawn in the viewport, most visible (opacity x size) first; renders draw all")
     _socket(group, "Size", "INPUT", "NodeSocketFloat", DEFAULT_SIZE, 0.5, 10.0,
-            "proxy half-size in standard deviations: the Gaussian is cut where the proxy ends "
-            "(3 covers everything above the 1/255 alpha cut-off for opacities below 0.7)")
+            "viewport proxy half-size in standard deviations: the Gaussian is cut where the proxy ends "
+            "(renders with Exact Projection size each splat where its alpha reaches 1/255)")
     _socket(group, "Render Width", "INPUT", "NodeSocketFloat", 0.0, 0.0, 1e6,
             "render width in pixels (driven by the scene's resolution): sets the 0.3 px^2 screen-space "
             "dilation the engine trains with; 0 turns the dilation off")
@@ -225,7 +226,7 @@ def camera_planes(nm: NodeMath, gin, points, cam_obj, proj, offset, focal_px):
         links.new(rotation, node.inputs["Rotation"])
         return output(node, "Vector")
 
-    right, up, back = rotate((1.0, 0.0, 0.0), rot_cam), rotate((0.0, 1.0, 0.0), rot_cam), rotate((0.0, 0.0, 1.0), rot_cam)
+    right, up, back = (rotate(axis, rot_cam) for axis in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
     down = nm.vmath("SCALE", up, scale=-1.0)
     forward = nm.vmath("SCALE", back, scale=-1.0)
     x = nm.vmath("DOT_PRODUCT", offset, right)

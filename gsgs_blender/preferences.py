@@ -335,8 +335,9 @@ class GSGS_SceneSettings(bpy.types.PropertyGroup):
                                          "(opacity x size) first (0: all); renders use all")
     splat_size: FloatProperty(name="Splat Size", default=DEFAULT_SPLAT_SIZE, min=0.5, max=10.0,
                               update=_update_display,
-                              description="Proxy half-size in standard deviations: each Gaussian is drawn out to "
-                                          "this distance (3 matches the engine; smaller is faster but cuts edges)")
+                              description="Viewport proxy half-size in standard deviations: each Gaussian is drawn "
+                                          "out to this distance (3: the engine's radius; smaller is faster but cuts "
+                                          "edges). Renders size each splat where its alpha reaches 1/255")
     setup_render_on_import: BoolProperty(
         name="Set Up Rendering", default=True,
         description="On import, set the scene's render settings so splats look like the engine's render "

@@ -18,7 +18,8 @@
 
 from __future__ import annotations
 
-TRANSPARENT_BOUNCES = 256  # measured enough on lego_200 and the demo (docs/blender_fidelity.md)
+# Cycles' maximum: a path ends when it escapes, so rays that cross few splats pay nothing for it.
+TRANSPARENT_BOUNCES = 1024
 
 
 COLOUR_ITEMS = [
@@ -90,5 +91,6 @@ def apply(scene, colour_mode: str = DEFAULT_COLOUR_MODE, objects=()) -> list[str
         if old != linear:
             node_groups.set_modifier_input(mod, "Linear Colours", linear)
             obj.update_tag()
-            lines.append(f"{obj.name} Linear Colours: {old} -> {linear} (matches the {colour_mode.lower()} colour mode)")
+            lines.append(f"{obj.name} Linear Colours: {old} -> {linear} "
+                         f"(matches the {colour_mode.lower()} colour mode)")
     return lines
