@@ -122,7 +122,7 @@ def splat_node_group() -> bpy.types.GeometryNodeTree:
             "dilation the engine trains with; 0 turns the dilation off")
     _socket(group, "Dilation", "INPUT", "NodeSocketFloat", LOW_PASS_DILATION, 0.0, 10.0,
             "screen-space variance added to every splat, in pixels^2 (the engine uses 0.3)")
-    _socket(group, "Linear Colours", "INPUT", "NodeSocketBool", True, description=(
+    _socket(group, "Linear Colours", "INPUT", "NodeSocketBool", False, description=(
         "on: colours converted from the engine's sRGB values to scene-linear (for the Standard view "
         "transform; blending then happens in linear light). Off: colours kept as display values, which "
         "blend exactly as the engine does under the Raw view transform (the import's render set-up sets it)"))

@@ -10,7 +10,7 @@ from bpy_extras.io_utils import ImportHelper
 from gsgs_engine import GsgsError
 from gsgs_engine.job import Job
 
-from . import ops_setup, splat_import
+from . import node_groups, ops_setup, splat_import
 from .ops_common import job_run, report_error
 
 RESULT_COLLECTION = "GS-GS Result"
@@ -37,6 +37,9 @@ def import_ply(scene, path: str | Path, replace_result: bool = True):
     warning = splat_import.count_warning(int(obj["gsgs_count"]), path)
     if warning:
         lines.append("WARNING: " + warning)
+    # A new object starts in the scene's colour mode (not a change to report).
+    node_groups.set_modifier_input(obj.modifiers[node_groups.MODIFIER_NAME], "Linear Colours",
+                                   s.colour_mode == "LINEAR")
     if s.setup_render_on_import:
         lines += [f"splat render set-up: {line}" for line in ops_setup.set_up(scene, s.colour_mode)]
     obj["gsgs_report"] = lines

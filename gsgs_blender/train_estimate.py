@@ -1,10 +1,12 @@
 """A training time estimate the Train panel states before a job starts.
 
-Scaled from the engine's measured runs (gsgs_engine/presets.py docstring, docs/accuracy_lego_200.md):
-on a 2-core CPU, 1000 iterations at 200x200 px took 130 s without a prior, and the weights-free
-prior cost 1.6x (llff_flower). One step renders one training view, so the time grows with the
-iterations and with the pixels of a view. It is a rough figure (Gaussian counts, densification and
-the machine change it) and says so.
+Scaled from measured runs on the project's 2-core CPU machine: 1000 iterations at 200x200 px took
+130 s without a prior (gsgs_engine/presets.py docstring, docs/accuracy_lego_200.md), the weights-free
+prior costs 1.6x (llff_flower, same source), and a photo job at 1600x871 px with the prior took
+257 s for 100 steps (issue 15's headless run). One step renders one training view, so the time
+grows with the iterations and, less than linearly, with the pixels of a view: those two points give
+seconds per step ~ pixels^0.7. It is a rough figure (Gaussian counts, densification and the machine
+change it) and the panel says so.
 """
 
 from __future__ import annotations
@@ -14,12 +16,15 @@ REFERENCE_ITERS = 1000
 REFERENCE_PIXELS = 200 * 200
 PRIOR_FACTOR = 1.6  # the weights-free prior on llff_flower (presets.py)
 MIN_PIXEL_FACTOR = 0.25  # below ~100x100 px per-step overheads dominate
+# 257 s / 100 steps / 1.6 (prior) = 1.6 s per step at 1600x871 against 0.13 s at 200x200:
+# log(1.6 / 0.13) / log(1600 * 871 / 40000) = 0.71
+PIXEL_EXPONENT = 0.71
 
 
 def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str) -> float:
     """Rough CPU seconds of a training run of `iterations` steps on views of width x height."""
     pixels = max(1.0, width * height * resolution_scale * resolution_scale)
-    per_step = REFERENCE_SECONDS / REFERENCE_ITERS * max(pixels / REFERENCE_PIXELS, MIN_PIXEL_FACTOR)
+    per_step = REFERENCE_SECONDS / REFERENCE_ITERS * max(pixels / REFERENCE_PIXELS, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT
     factor = PRIOR_FACTOR if generator not in ("none", "depth") else 1.0
     return iterations * per_step * factor
 

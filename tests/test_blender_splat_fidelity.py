@@ -143,3 +143,13 @@ def test_cycles_render_matches_the_engine(tmp_path):
     assert summary["blender_vs_engine"]["psnr"] > 40.0, summary["blender_vs_engine"]  # measured 55.8 dB
     assert summary["blender_vs_engine"]["ssim"] > 0.99, summary["blender_vs_engine"]
     assert "Blender vs engine" in done.stdout
+
+
+def test_training_estimate_reproduces_its_reference_runs():
+    from gsgs_blender import train_estimate
+
+    assert train_estimate.estimate_seconds(1000, 200, 200, 1.0, "none") == pytest.approx(130.0)
+    photo = train_estimate.estimate_seconds(100, 1600, 871, 1.0, "auto")  # issue 15's photo job: 257 s
+    assert 200 < photo < 320
+    assert train_estimate.estimate_seconds(1000, 200, 200, 0.5, "none") < 130.0
+    assert train_estimate.format_duration(4000) == "67 min"
