@@ -47,6 +47,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--bounces", type=int, default=None, help="Cycles transparent bounces (default: the add-on's)")
     p.add_argument("--samples", type=int, default=None, help="Cycles samples (default: the add-on's set-up)")
     p.add_argument("--no-dilation", action="store_true", help="turn the 0.3 px^2 dilation off (ablation)")
+    p.add_argument("--no-exact-projection", action="store_true",
+                   help="render the viewport's 3D cube proxies instead of camera-facing 2D Gaussians (ablation)")
     p.add_argument("--engine", choices=("CYCLES", "BLENDER_EEVEE"), default="CYCLES",
                    help="Blender render engine (default CYCLES)")
     p.add_argument("--colour", choices=("EXACT", "LINEAR"), default=None,
@@ -166,7 +168,8 @@ def set_world_background(scene, rgb) -> None:
 
 
 def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None, samples: int | None,
-                   dilation: bool, engine: str, threads: int, colour: str | None = None, progress=print) -> dict:
+                   dilation: bool, engine: str, threads: int, colour: str | None = None, exact_projection: bool = True,
+                   progress=print) -> dict:
     """Import, set up and render every listed view; returns seconds and settings."""
     import bpy
 
@@ -188,6 +191,7 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
     mod = obj.modifiers[node_groups.MODIFIER_NAME]
     if not dilation:
         node_groups.set_modifier_input(mod, "Dilation", 0.0)
+    node_groups.set_modifier_input(mod, "Exact Projection", bool(exact_projection))
     scene.render.engine = engine
     scene.cycles.device = "CPU"
     if threads:
@@ -221,6 +225,7 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
             "samples": scene.cycles.samples if engine == "CYCLES" else scene.eevee.taa_render_samples,
             "dilation": node_groups.get_modifier_input(mod, "Dilation"), "render_engine": engine,
             "colour_mode": colour, "view_transform": scene.view_settings.view_transform,
+            "exact_projection": bool(exact_projection),
             "blender_version": bpy.app.version_string}
 
 
@@ -249,11 +254,13 @@ def table(summary: dict) -> str:
                        ("engine_vs_gt", "engine vs ground truth")):
         lines.append(f"| {label} | {summary[key]['psnr']:.2f} | {summary[key]['ssim']:.4f} |")
     b = summary["blender"]
+    proxies = "camera-facing 2D Gaussians" if b["exact_projection"] else f"3D cube proxies of {b['size']:g} sigma"
     lines.append("")
     lines.append(f"{len(summary['views'])} views at {summary['width']}x{summary['height']}, "
                  f"{summary['num_gaussians']} Gaussians, SH degree {summary['sh_degree']}; "
                  f"{b['render_engine']} {b['samples']} sample(s), {b['transparent_bounces']} transparent bounces, "
                  f"{b['colour_mode'].lower()} colours ({b['view_transform']}), "
+                 f"{proxies}, "
                  f"dilation {b['dilation']:g} px^2: "
                  f"{summary['seconds_per_view']:.2f} s per view (engine {summary['engine_seconds_per_view']:.2f} s); "
                  f"import {b['import_seconds']:.2f} s; "
@@ -271,7 +278,7 @@ def run(args: argparse.Namespace) -> dict:
     print(f"[fidelity] engine renders of {args.views} {args.split} views ...", flush=True)
     run_engine_step(args.engine_python, "render", common)
     blender = blender_render(ply, out, args.size, args.bounces, args.samples, not args.no_dilation, args.engine,
-                             args.threads, args.colour)
+                             args.threads, args.colour, not args.no_exact_projection)
     run_engine_step(args.engine_python, "metrics", common)
     summary = summarise(out, blender)
     summary.update({"ply": str(ply), "data": str(args.data), "split": args.split})
