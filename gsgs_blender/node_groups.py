@@ -68,6 +68,15 @@ def _named(nm: NodeMath, name: str, data_type: str):
     return output(node, "Attribute")
 
 
+def _store(nm: NodeMath, geometry, name: str, value, data_type: str):
+    """Store `value` as the point attribute `name`; returns the geometry output."""
+    node = nm.node("GeometryNodeStoreNamedAttribute", data_type=data_type, domain="POINT")
+    node.inputs["Name"].default_value = name
+    nm.tree.links.new(geometry, node.inputs["Geometry"])
+    nm.tree.links.new(value, input_socket(node, "Value", "VECTOR" if data_type == "FLOAT_VECTOR" else "VALUE"))
+    return node.outputs["Geometry"]
+
+
 def sh_basis(nm: NodeMath, direction) -> list:
     """The 15 non-constant SH basis values (degree 1-3) of a unit direction, as float sockets."""
     x, y, z = nm.separate(direction)
@@ -174,14 +183,8 @@ def splat_node_group() -> bpy.types.GeometryNodeTree:
     direction = nm.vmath("NORMALIZE", offset)
     rgb = view_color(nm, direction, gin.outputs["Linear Colours"])
 
-    store_rgb = nm.node("GeometryNodeStoreNamedAttribute", data_type="FLOAT_VECTOR", domain="POINT")
-    store_rgb.inputs["Name"].default_value = splat_material.COLOR_ATTRIBUTE
-    links.new(delete.outputs["Geometry"], store_rgb.inputs["Geometry"])
-    links.new(rgb, input_socket(store_rgb, "Value", "VECTOR"))
-    store_size = nm.node("GeometryNodeStoreNamedAttribute", data_type="FLOAT", domain="POINT")
-    store_size.inputs["Name"].default_value = splat_material.PROXY_ATTRIBUTE
-    links.new(store_rgb.outputs["Geometry"], store_size.inputs["Geometry"])
-    links.new(gin.outputs["Size"], input_socket(store_size, "Value", "VALUE"))
+    coloured = _store(nm, delete.outputs["Geometry"], splat_material.COLOR_ATTRIBUTE, rgb, "FLOAT_VECTOR")
+    sized = _store(nm, coloured, splat_material.PROXY_ATTRIBUTE, gin.outputs["Size"], "FLOAT")
 
     cube = nm.node("GeometryNodeMeshCube")
     cube.inputs["Size"].default_value = (2.0, 2.0, 2.0)  # half-size 1: the material reads +-1 object coords
@@ -191,13 +194,13 @@ def splat_node_group() -> bpy.types.GeometryNodeTree:
 
     instance = nodes.new("GeometryNodeInstanceOnPoints")
     instance.location = (400, 0)
-    links.new(store_size.outputs["Geometry"], instance.inputs["Points"])
+    links.new(sized, instance.inputs["Points"])
     links.new(set_mat.outputs["Geometry"], instance.inputs["Instance"])
     links.new(_named(nm, "rotation", "QUATERNION"), instance.inputs["Rotation"])
     links.new(proxy_scale, instance.inputs["Scale"])
     # Point attributes (gsgs_rgb, opacity, gsgs_proxy, ...) propagate to the instance domain by themselves.
 
-    planes = camera_planes(nm, gin, store_rgb.outputs["Geometry"], cam_obj, proj, offset, focal_px)
+    planes = camera_planes(nm, gin, coloured, cam_obj, proj, offset, focal_px)
     use_cubes = nm.node("FunctionNodeBooleanMath", operation="NIMPLY")  # viewport, or not exact
     links.new(gin.outputs["Exact Projection"], use_cubes.inputs[0])
     links.new(output(is_viewport, "Is Viewport"), use_cubes.inputs[1])
@@ -265,14 +268,8 @@ def camera_planes(nm: NodeMath, gin, points, cam_obj, proj, offset, focal_px):
     delete = nm.node("GeometryNodeDeleteGeometry", domain="POINT")
     links.new(points, delete.inputs["Geometry"])
     links.new(nm.math("LESS_THAN", keep, 0.5), delete.inputs["Selection"])
-    store_conic = nm.node("GeometryNodeStoreNamedAttribute", data_type="FLOAT_VECTOR", domain="POINT")
-    store_conic.inputs["Name"].default_value = splat_material.CONIC_ATTRIBUTE
-    links.new(delete.outputs["Geometry"], store_conic.inputs["Geometry"])
-    links.new(conic, input_socket(store_conic, "Value", "VECTOR"))
-    store_radius = nm.node("GeometryNodeStoreNamedAttribute", data_type="FLOAT", domain="POINT")
-    store_radius.inputs["Name"].default_value = splat_material.PROXY_ATTRIBUTE
-    links.new(store_conic.outputs["Geometry"], store_radius.inputs["Geometry"])
-    links.new(radius, input_socket(store_radius, "Value", "VALUE"))
+    with_conic = _store(nm, delete.outputs["Geometry"], splat_material.CONIC_ATTRIBUTE, conic, "FLOAT_VECTOR")
+    with_radius = _store(nm, with_conic, splat_material.PROXY_ATTRIBUTE, radius, "FLOAT")
 
     square = nm.node("GeometryNodeMeshGrid")
     square.inputs["Size X"].default_value = 2.0  # +-1 object coordinates, scaled by the radius
@@ -283,7 +280,7 @@ def camera_planes(nm: NodeMath, gin, points, cam_obj, proj, offset, focal_px):
     links.new(square.outputs["Mesh"], set_mat.inputs["Geometry"])
     links.new(gin.outputs["Camera Material"], set_mat.inputs["Material"])
     instance = nm.node("GeometryNodeInstanceOnPoints")
-    links.new(store_radius.outputs["Geometry"], instance.inputs["Points"])
+    links.new(with_radius, instance.inputs["Points"])
     links.new(set_mat.outputs["Geometry"], instance.inputs["Instance"])
     links.new(rot_cam, instance.inputs["Rotation"])
     links.new(nm.combine(radius, radius, 1.0), instance.inputs["Scale"])

@@ -59,14 +59,14 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def find_ply(result: Path) -> Path:
+    """RESULT itself when it is a file, else the shallowest point_cloud.ply under it (a job's result/ too)."""
     from gsgs_engine import GsgsError
 
-    if result.is_file():
-        return result
-    for candidate in (result / "point_cloud.ply", result / "result" / "point_cloud.ply"):
-        if candidate.is_file():
-            return candidate
-    raise GsgsError(f"{result}: no point_cloud.ply here or in result/; pass a `gsgs train --out` folder or a PLY")
+    found = [result] if result.is_file() else sorted(result.glob("**/point_cloud.ply"), key=lambda p: len(p.parts))
+    if not found:
+        raise GsgsError(f"{result}: no point_cloud.ply in this folder; pass a `gsgs train --out` folder, "
+                        "a job folder or a PLY")
+    return found[0]
 
 
 # ---------------------------------------------------------------------------------------------
