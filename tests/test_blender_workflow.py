@@ -89,3 +89,20 @@ def test_job_paths_may_be_blend_relative(addon):
         warnings.simplefilter("error")
         for name in ("sfm_job", "train_job", "validate_job", "photos_dir", "validate_source"):
             setattr(addon.gsgs, name, "//gsgs_jobs/x")
+
+
+def test_train_panel_states_the_time_and_unused_path_poses_before_starting(addon):
+    from test_blender_addon import _draw_all, _lego_cameras
+
+    scene = addon
+    _lego_cameras(scene)
+    bpy.ops.gsgs.use_scene_cameras()
+    bpy.ops.gsgs.make_pseudo_path(closed=True)
+    bpy.ops.gsgs.sample_pseudo_poses()
+    labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
+    estimate = [t for t in labels if t.startswith("Estimated: ~")]
+    assert estimate and "1000 steps on 200x200 px" in estimate[0], labels  # the balanced preset on lego
+    assert any("path poses are unused" in t for t in labels)  # the preset has no generator
+    scene.gsgs.generator = "warp"
+    labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
+    assert not any("path poses are unused" in t for t in labels)
