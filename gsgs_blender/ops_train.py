@@ -88,7 +88,11 @@ def sparse_points_file(scene) -> str | None:
 def _on_train_finished(scene, run) -> None:
     if run.state == "ok":
         obj = import_job_result(scene, run.job_dir)
-        run.message = f"{run.message} — imported {obj['gsgs_count']} splats"
+        report = list(obj.get("gsgs_report", []))
+        warnings = [line for line in report if line.startswith("WARNING: ")]
+        run.message = f"{run.message} — imported {obj['gsgs_count']} splats" + "".join(f"; {w}" for w in warnings)
+        for line in report:  # the job's callback has no operator to report through: the console keeps them
+            print(f"gsgs: {line}", flush=True)
 
 
 CALLBACKS = {"train": _on_train_finished, "validate": None}
