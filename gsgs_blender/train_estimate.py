@@ -30,6 +30,8 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
 
 
 def format_duration(seconds: float) -> str:
+    if seconds < 1:
+        return "under 1 s"
     if seconds < 90:
         return f"{seconds:.0f} s"
     if seconds < 5400:
