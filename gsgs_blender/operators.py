@@ -1,90 +1,9 @@
-"""Helpers every operator module shares: new job folders, launching jobs, reporting errors.
-
-Operators live in ops_photos (photos -> cameras), ops_paths (pseudo paths), ops_train
-(train / cancel / resume / validate) and ops_result (import splats). A job is started the
-same way everywhere: write the folder, start the engine child, and either poll it from a
-timer (interactive Blender) or wait for it (the bpy module and --background).
-"""
+"""Every operator class of the add-on, for registration (the helpers they share are in ops_common)."""
 
 from __future__ import annotations
 
-import functools
-import time
-from pathlib import Path
-from typing import Callable
-
-import bpy
-
-from gsgs_engine import GsgsError
-from gsgs_engine.job import Job
-
-from . import job_runner
-from .preferences import get_prefs, jobs_root
-
-
-def new_job_dir(context, task: str) -> Path:
-    """A fresh, uniquely named job folder under the jobs root."""
-    root = jobs_root(context)
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    path = root / f"{task}-{stamp}"
-    k = 1
-    while path.exists():
-        k += 1
-        path = root / f"{task}-{stamp}-{k}"
-    return path
-
-
-def stored_path(path: Path) -> str:
-    """A job folder as the .blend keeps it: relative (//...) when the file is saved, so a project
-    folder moved to another machine still finds its jobs."""
-    if bpy.data.filepath:
-        try:
-            return bpy.path.relpath(str(path))
-        except ValueError:  # another drive (Windows)
-            pass
-    return str(path)
-
-
-def launch(context, job: Job, on_finish: Callable[[job_runner.JobRun], None] | None = None,
-           timeout: float | None = None) -> job_runner.JobRun:
-    """Start the engine on `job`. Interactive: returns at once, a timer polls. Headless: waits."""
-    prefs = get_prefs(context)
-    python = bpy.path.abspath(prefs.python_path)
-    engine_root = bpy.path.abspath(prefs.engine_root) if prefs.engine_root else None
-    interactive = job_runner.ui_available()
-    run = job_runner.start(job.root, python, engine_root=engine_root, on_finish=on_finish, use_timer=interactive)
-    if not interactive:
-        job_runner.wait_for(run, timeout=timeout)
-    return run
-
-
-def scene_callback(scene_name: str, fn: Callable) -> Callable[[job_runner.JobRun], None]:
-    """An on_finish callback that finds its scene by name (objects may have been replaced since)."""
-    @functools.wraps(fn)
-    def callback(run: job_runner.JobRun) -> None:
-        scene = bpy.data.scenes.get(scene_name)
-        if scene is not None:
-            fn(scene, run)
-    return callback
-
-
-def report_error(op, exc: Exception) -> set:
-    message = str(exc) if isinstance(exc, GsgsError) else f"{type(exc).__name__}: {exc}"
-    op.report({"ERROR"}, message)
-    return {"CANCELLED"}
-
-
-def job_run(path: str) -> job_runner.JobRun | None:
-    """The live or recorded run of a job folder path stored on the scene ('' -> None)."""
-    if not path:
-        return None
-    folder = Path(bpy.path.abspath(path))
-    if not (folder / "job.json").is_file():
-        return None
-    return job_runner.attach(folder)
+from . import ops_paths, ops_photos, ops_result, ops_setup, ops_train
 
 
 def all_classes() -> tuple:
-    from . import ops_paths, ops_photos, ops_result, ops_train
-
-    return ops_photos.CLASSES + ops_paths.CLASSES + ops_train.CLASSES + ops_result.CLASSES
+    return ops_photos.CLASSES + ops_paths.CLASSES + ops_train.CLASSES + ops_result.CLASSES + ops_setup.CLASSES

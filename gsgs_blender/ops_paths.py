@@ -8,7 +8,7 @@ import numpy as np
 from gsgs_engine import GsgsError
 
 from . import pseudo_paths
-from .operators import report_error
+from .ops_common import report_error
 
 
 class GSGS_OT_make_pseudo_path(bpy.types.Operator):

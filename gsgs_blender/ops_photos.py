@@ -14,7 +14,7 @@ from gsgs_engine.cameras import Camera
 from gsgs_engine.job import Job
 
 from . import camera_convert
-from .operators import job_run, launch, new_job_dir, report_error, scene_callback, stored_path
+from .ops_common import job_run, launch, new_job_dir, report_error, scene_callback, stored_path, timeout_property
 
 CAMERA_COLLECTION = "GS-GS Cameras"
 POINTS_NAME = "GS-GS Sparse Points"
@@ -122,7 +122,13 @@ def load_sfm_result(scene, job_dir: str | Path) -> tuple[list, object | None]:
                 raise GsgsError(f"{image}: photo of camera {cam.name!r} is missing; run the SfM job again")
             set_background_photo(obj, image)
         objects.append(obj)
+    before = (scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage)
     camera_convert.apply_camera_to_object(cams[0][0], objects[0], scene, set_scene_frame=True)
+    after = (scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage)
+    # The render frame follows the photos so the cameras show them undistorted; said, never silent.
+    scene.gsgs["resolution_note"] = "" if before == after else (
+        f"render resolution set to the photos' {after[0]}x{after[1]} at {after[2]}% "
+        f"(was {before[0]}x{before[1]} at {before[2]}%)")
     scene.camera = objects[0]
     scene.gsgs.camera_collection = coll
     pts_obj = None
@@ -144,6 +150,8 @@ class GSGS_OT_import_photos(bpy.types.Operator):
     bl_description = ("Run structure from motion on the photos folder in the background, then create a camera "
                       "per photo (photo as background) and the sparse points")
     bl_options = {"REGISTER"}
+
+    timeout: timeout_property()
 
     @classmethod
     def poll(cls, context):
@@ -168,7 +176,7 @@ class GSGS_OT_import_photos(bpy.types.Operator):
                              settings={"max_image_size": settings.max_image_size},
                              blender={"file": bpy.data.filepath, "scene": scene.name})
             settings.sfm_job = stored_path(job.root)
-            run = launch(context, job, on_finish=scene_callback(scene.name, _on_sfm_finished))
+            run = launch(context, job, on_finish=scene_callback(scene.name, on_sfm_finished), timeout=self.timeout)
         except GsgsError as exc:
             return report_error(self, exc)
         if run.finished and run.state != "ok":
@@ -177,10 +185,13 @@ class GSGS_OT_import_photos(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def _on_sfm_finished(scene, run) -> None:
+def on_sfm_finished(scene, run) -> None:
     if run.state == "ok":
         cams, _ = load_sfm_result(scene, run.job_dir)
-        run.message = f"{run.message} — {len(cams)} cameras imported"
+        note = scene.gsgs.get("resolution_note", "")
+        run.message = f"{run.message} — {len(cams)} cameras imported" + (f"; {note}" if note else "")
+        if note:
+            print(f"gsgs: {note}", flush=True)
 
 
 class GSGS_OT_load_sfm_result(bpy.types.Operator):
@@ -203,6 +214,9 @@ class GSGS_OT_load_sfm_result(bpy.types.Operator):
         except GsgsError as exc:
             return report_error(self, exc)
         self.report({"INFO"}, f"{len(cams)} cameras loaded")
+        note = context.scene.gsgs.get("resolution_note", "")
+        if note:
+            self.report({"WARNING"}, note)
         return {"FINISHED"}
 
 

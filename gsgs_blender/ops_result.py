@@ -10,8 +10,8 @@ from bpy_extras.io_utils import ImportHelper
 from gsgs_engine import GsgsError
 from gsgs_engine.job import Job
 
-from . import splat_import
-from .operators import job_run, report_error
+from . import node_groups, ops_setup, splat_import
+from .ops_common import job_run, report_error
 
 RESULT_COLLECTION = "GS-GS Result"
 
@@ -24,6 +24,8 @@ def _collection(scene, name: str):
 
 
 def import_ply(scene, path: str | Path, replace_result: bool = True):
+    """Import the PLY as the scene's result; with Set Up Rendering on (the default) the scene's render
+    settings are made to suit splats. The lines to report (changes, count warning) are in obj["gsgs_report"]."""
     s = scene.gsgs
     if replace_result and s.result_object is not None:
         bpy.data.objects.remove(s.result_object, do_unlink=True)
@@ -31,7 +33,27 @@ def import_ply(scene, path: str | Path, replace_result: bool = True):
                                               max_display=s.max_display, size=s.splat_size)
     obj["gsgs_import_seconds"] = round(seconds, 3)
     s.result_object = obj
+    lines = []
+    warning = splat_import.count_warning(int(obj["gsgs_count"]), path)
+    if warning:
+        lines.append("WARNING: " + warning)
+    # A new object starts in the scene's colour mode (not a change to report).
+    node_groups.set_modifier_input(obj.modifiers[node_groups.MODIFIER_NAME], "Linear Colours",
+                                   s.colour_mode == "LINEAR")
+    if s.setup_render_on_import:
+        lines += [f"splat render set-up: {line}" for line in ops_setup.set_up(scene, s.colour_mode)]
+    obj["gsgs_report"] = lines
     return obj
+
+
+def report_import(op, obj) -> None:
+    """The import's Info lines: count and time, the count warning, each render setting changed."""
+    op.report({"INFO"}, f"{obj['gsgs_count']} splats in {obj['gsgs_import_seconds']} s")
+    for line in obj.get("gsgs_report", []):
+        if line.startswith("WARNING: "):
+            op.report({"WARNING"}, line[len("WARNING: "):])
+        else:
+            op.report({"INFO"}, line)
 
 
 def import_job_result(scene, job_dir: str | Path):
@@ -52,7 +74,8 @@ def import_job_result(scene, job_dir: str | Path):
 class GSGS_OT_import_result(bpy.types.Operator):
     bl_idname = "gsgs.import_result"
     bl_label = "Import Result"
-    bl_description = "Import the finished training job's splats as point instances (replaces the previous result)"
+    bl_description = ("Import the finished training job's splats (replaces the previous result); with Set Up "
+                      "Rendering on, the scene's render settings are made to suit splats (each change reported)")
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
@@ -68,7 +91,7 @@ class GSGS_OT_import_result(bpy.types.Operator):
             obj = import_job_result(context.scene, bpy.path.abspath(context.scene.gsgs.train_job))
         except GsgsError as exc:
             return report_error(self, exc)
-        self.report({"INFO"}, f"{obj['gsgs_count']} splats in {obj['gsgs_import_seconds']} s")
+        report_import(self, obj)
         return {"FINISHED"}
 
 
@@ -86,7 +109,7 @@ class GSGS_OT_import_splat_ply(bpy.types.Operator, ImportHelper):
             obj = import_ply(context.scene, self.filepath, replace_result=False)
         except GsgsError as exc:
             return report_error(self, exc)
-        self.report({"INFO"}, f"{obj['gsgs_count']} splats in {obj['gsgs_import_seconds']} s")
+        report_import(self, obj)
         return {"FINISHED"}
 
 

@@ -9,8 +9,10 @@ import bpy
 from gsgs_engine import GsgsError
 from gsgs_engine.job import Job, settings_with_preset
 
-from . import camera_convert, pseudo_paths
-from .operators import job_run, launch, new_job_dir, report_error, scene_callback, stored_path
+from . import camera_convert, pseudo_paths, train_estimate
+from .ops_common import job_run, launch, new_job_dir, report_error, scene_callback, stored_path, timeout_property
+from .ops_photos import on_sfm_finished, photo_of
+from .ops_result import import_job_result
 from .preferences import get_prefs, prior_settings
 
 JOB_KINDS = [("sfm", "Camera Solve", ""), ("train", "Training", ""), ("validate", "Validation", "")]
@@ -21,8 +23,6 @@ def training_views(scene) -> list[dict]:
     objs = pseudo_paths.training_camera_objects(scene)
     if not objs:
         raise GsgsError("no training cameras; import photos (Solve Cameras) or Use Scene Cameras first")
-    from .ops_photos import photo_of
-
     views = []
     for obj in objs:
         image = photo_of(obj)
@@ -87,10 +87,12 @@ def sparse_points_file(scene) -> str | None:
 
 def _on_train_finished(scene, run) -> None:
     if run.state == "ok":
-        from .ops_result import import_job_result
-
         obj = import_job_result(scene, run.job_dir)
-        run.message = f"{run.message} — imported {obj['gsgs_count']} splats"
+        report = list(obj.get("gsgs_report", []))
+        warnings = [line for line in report if line.startswith("WARNING: ")]
+        run.message = f"{run.message} — imported {obj['gsgs_count']} splats" + "".join(f"; {w}" for w in warnings)
+        for line in report:  # the job's callback has no operator to report through: the console keeps them
+            print(f"gsgs: {line}", flush=True)
 
 
 CALLBACKS = {"train": _on_train_finished, "validate": None}
@@ -108,6 +110,8 @@ class GSGS_OT_train(bpy.types.Operator):
                       "background; the result is imported when it finishes")
     bl_options = {"REGISTER"}
 
+    timeout: timeout_property()
+
     @classmethod
     def poll(cls, context):
         if not pseudo_paths.training_camera_objects(context.scene):
@@ -123,12 +127,14 @@ class GSGS_OT_train(bpy.types.Operator):
         try:
             job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
             scene.gsgs.train_job = stored_path(job.root)
-            run = launch(context, job, on_finish=scene_callback(scene.name, _on_train_finished))
+            run = launch(context, job, on_finish=scene_callback(scene.name, _on_train_finished), timeout=self.timeout)
         except GsgsError as exc:
             return report_error(self, exc)
         if run.finished and run.state != "ok":
             return report_error(self, GsgsError(f"training {run.state}: {run.message}"))
-        self.report({"INFO"}, run.message if run.finished else f"training started: {job.root}")
+        estimate = train_estimate.estimate_text(scene)
+        self.report({"INFO"}, run.message if run.finished else
+                    f"training started: {job.root}" + (f" (estimated {estimate})" if estimate else ""))
         return {"FINISHED"}
 
 
@@ -138,6 +144,8 @@ class GSGS_OT_validate(bpy.types.Operator):
     bl_description = ("Train on a few views of a dataset with held-out test views and measure PSNR / SSIM / LPIPS "
                       "on the test views, in the background")
     bl_options = {"REGISTER"}
+
+    timeout: timeout_property()
 
     @classmethod
     def poll(cls, context):
@@ -160,7 +168,7 @@ class GSGS_OT_validate(bpy.types.Operator):
                              data={"path": str(source), "format": "auto", "train_views": int(s.validate_views)},
                              settings=job_settings(context))
             s.validate_job = stored_path(job.root)
-            run = launch(context, job)
+            run = launch(context, job, timeout=self.timeout)
         except GsgsError as exc:
             return report_error(self, exc)
         if run.finished and run.state != "ok":
@@ -193,6 +201,8 @@ class GSGS_OT_resume_job(bpy.types.Operator):
 
     kind: bpy.props.EnumProperty(items=JOB_KINDS, default="train")
 
+    timeout: timeout_property()
+
     def execute(self, context):
         scene = context.scene
         path = getattr(scene.gsgs, f"{self.kind}_job")
@@ -203,13 +213,11 @@ class GSGS_OT_resume_job(bpy.types.Operator):
             return report_error(self, GsgsError("the job is already running"))
         callback = None
         if self.kind == "sfm":
-            from .ops_photos import _on_sfm_finished
-
-            callback = scene_callback(scene.name, _on_sfm_finished)
+            callback = scene_callback(scene.name, on_sfm_finished)
         elif CALLBACKS.get(self.kind):
             callback = scene_callback(scene.name, CALLBACKS[self.kind])
         try:
-            run = launch(context, Job.open(run.job_dir), on_finish=callback)
+            run = launch(context, Job.open(run.job_dir), on_finish=callback, timeout=self.timeout)
         except GsgsError as exc:
             return report_error(self, exc)
         self.report({"INFO"}, run.message if run.finished else "resumed")

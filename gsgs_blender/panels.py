@@ -8,8 +8,8 @@ from pathlib import Path
 import bpy
 from gsgs_engine import presets
 
-from . import job_runner, pseudo_paths
-from .operators import job_run
+from . import job_runner, pseudo_paths, train_estimate
+from .ops_common import job_run
 
 
 def draw_job(layout, path: str, kind: str) -> None:
@@ -134,6 +134,12 @@ class GSGS_PT_train(_GsgsPanel, bpy.types.Panel):
         col.prop(s, "rounds")
         col.prop(s, "resolution_scale")
         col.prop(s, "generator")
+        poses = len(pseudo_paths.poses_from_json(s.pseudo_poses))
+        if poses and s.generator == "none":
+            layout.label(text=f"The {poses} path poses are unused: choose a Generator", icon="INFO")
+        estimate = train_estimate.estimate_text(context.scene)
+        if estimate:
+            layout.label(text=f"Estimated: {estimate}", icon="TIME")
         layout.operator("gsgs.train", icon="PLAY")
         draw_job(layout, s.train_job, "train")
 
@@ -160,6 +166,10 @@ class GSGS_PT_result(_GsgsPanel, bpy.types.Panel):
                 layout.label(text="Time fields kept as attributes (not a gsgs 4D result: no playback)", icon="TIME")
         layout.prop(s, "max_display")
         layout.prop(s, "splat_size")
+        row = layout.row(align=True)
+        row.prop(s, "setup_render_on_import")
+        row.prop(s, "colour_mode", text="")
+        layout.operator("gsgs.setup_splat_render", icon="SCENE").colour_mode = s.colour_mode
         metrics = _metrics(s.train_job)
         if metrics:
             layout.label(text=metrics)

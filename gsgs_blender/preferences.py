@@ -19,6 +19,10 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
 
 from gsgs_engine import presets
 
+from . import node_groups, splat_import
+from .node_groups import DEFAULT_SIZE as DEFAULT_SPLAT_SIZE
+from .render_setup import COLOUR_ITEMS, DEFAULT_COLOUR_MODE
+
 # The checkout this add-on runs from, when it is one (gsgs_blender/ next to gsgs_engine/).
 _CHECKOUT = Path(__file__).resolve().parents[1]
 ADDON_ID = __package__
@@ -236,6 +240,8 @@ def _preset_item(name: str) -> tuple[str, str, str]:
 # `gsgs train --preset`: the values come from the engine's table (torch-free), so the two never disagree.
 PRESETS = [("custom", "Custom", "Keep the training fields below as you set them")] + [
     _preset_item(name) for name in presets.PRESET_NAMES]
+DEFAULT_PRESET = "balanced"  # the engine's own default schedule (gsgs train without flags)
+_DEFAULTS = presets.PRESETS[DEFAULT_PRESET]
 # panel field -> preset key; pseudo views, SH degree and backend have no field: the job's "preset" sets them
 PRESET_FIELDS = {"iterations": "iters", "resolution_scale": "resolution_scale", "generator": "prior",
                  "rounds": "rounds"}
@@ -276,8 +282,6 @@ def _update_display(self, context) -> None:
     mod = obj.modifiers.get("GS-GS Splats") if obj is not None else None
     if mod is None or mod.node_group is None:
         return
-    from . import node_groups, splat_import
-
     count = len(obj.data.vertices) if obj.type == "MESH" else 0
     node_groups.set_modifier_input(mod, "Display Ratio", splat_import.display_ratio_for(count, self.max_display))
     node_groups.set_modifier_input(mod, "Size", float(self.splat_size))
@@ -285,44 +289,67 @@ def _update_display(self, context) -> None:
 
 
 class GSGS_SceneSettings(bpy.types.PropertyGroup):
-    photos_dir: StringProperty(name="Photos", subtype="DIR_PATH", description="Folder of photos to reconstruct")
+    photos_dir: StringProperty(name="Photos", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                               description="Folder of photos to reconstruct")
     max_image_size: IntProperty(name="Max Image Size", default=1600, min=64, max=8192,
                                 description="SfM works on photos downscaled to this longer side")
-    sfm_job: StringProperty(name="SfM Job", subtype="DIR_PATH", description="Job folder of the camera solve")
+    sfm_job: StringProperty(name="SfM Job", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                            description="Job folder of the camera solve")
     camera_collection: PointerProperty(name="Cameras", type=bpy.types.Collection,
                                        description="Collection whose camera objects are the training views")
     points_object: PointerProperty(name="Sparse Points", type=bpy.types.Object,
-                                   description="Sparse SfM points (initialise the splats)")
+                                   description="Sparse points of the camera solve. Training triangulates its own "
+                                               "points from the photos and uses these only when that gives too "
+                                               "few; they also show the scene's extent for drawing a path")
     pseudo_curve: PointerProperty(name="Path", type=bpy.types.Object,
                                   description="Curve the pseudo cameras are sampled along")
     pseudo_count: IntProperty(name="Pseudo Views", default=16, min=1, max=512,
-                              description="How many pseudo poses to sample along the path")
+                              description="How many pseudo poses to sample along the path. The engine adds "
+                                          "these to its own automatic pseudo views (as many as the job's pseudo "
+                                          "view setting, 16 unless a preset says otherwise), so 16 here gives 32 "
+                                          "per round. Path poses are used only when a Generator is on")
     pseudo_orientation: EnumProperty(name="Orientation", items=ORIENTATIONS, default="LOOK_AT")
     pseudo_poses: StringProperty(name="Pseudo Poses", default="[]",
                                  description="Sampled pseudo poses as JSON (Camera.to_dict list)")
     show_frusta: BoolProperty(name="Show Frusta", default=True, description="Draw the pseudo cameras in the viewport")
-    preset: EnumProperty(name="Preset", items=PRESETS, default="custom", update=_apply_preset,
+    preset: EnumProperty(name="Preset", items=PRESETS, default=DEFAULT_PRESET, update=_apply_preset,
                          description="Settings from the measured accuracy/time front (`gsgs train --preset`); "
                                      "editing a field below makes it Custom")
-    iterations: IntProperty(name="Iterations", default=10000, min=1, max=1_000_000, update=_training_field_edited,
-                            description="Gaussian-splat optimisation steps in all (the paper uses 10,000)")
-    rounds: IntProperty(name="Rounds", default=3, min=0, max=20, update=_training_field_edited,
+    iterations: IntProperty(name="Iterations", default=_DEFAULTS["iters"], min=1, max=1_000_000,
+                            update=_training_field_edited,
+                            description="Gaussian-splat optimisation steps in all (the engine's default and the "
+                                        "balanced preset: 1000; the paper uses 10,000, hours on a CPU)")
+    rounds: IntProperty(name="Rounds", default=_DEFAULTS["rounds"], min=0, max=20, update=_training_field_edited,
                         description="Hallucination rounds: regenerate pseudo views this many times")
-    resolution_scale: FloatProperty(name="Resolution", default=1.0, min=0.05, max=1.0, subtype="FACTOR",
+    resolution_scale: FloatProperty(name="Resolution", default=_DEFAULTS["resolution_scale"], min=0.05, max=1.0,
+                                    subtype="FACTOR",
                                     update=_training_field_edited,
                                     description="Train on images downscaled by this factor")
-    generator: EnumProperty(name="Generator", items=GENERATORS, default="auto", update=_training_field_edited)
-    train_job: StringProperty(name="Train Job", subtype="DIR_PATH", description="Job folder of the training run")
+    generator: EnumProperty(name="Generator", items=GENERATORS, default=_DEFAULTS["prior"],
+                            update=_training_field_edited)
+    train_job: StringProperty(name="Train Job", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                              description="Job folder of the training run")
     result_object: PointerProperty(name="Result", type=bpy.types.Object, description="Imported splat object")
     max_display: IntProperty(name="Viewport Splats", default=200_000, min=0, update=_update_display,
-                             description="At most this many splats drawn in the viewport (0: all); renders use all")
-    splat_size: FloatProperty(name="Splat Size", default=1.0, min=0.0, max=10.0, update=_update_display,
-                              description="Sphere radius in standard deviations of each Gaussian")
-    validate_source: StringProperty(name="Dataset", subtype="DIR_PATH",
+                             description="At most this many splats drawn in the viewport, the most visible "
+                                         "(opacity x size) first (0: all); renders use all")
+    splat_size: FloatProperty(name="Splat Size", default=DEFAULT_SPLAT_SIZE, min=0.5, max=10.0,
+                              update=_update_display,
+                              description="Viewport proxy half-size in standard deviations: each Gaussian is drawn "
+                                          "out to this distance (3: the engine's radius; smaller is faster but cuts "
+                                          "edges). Renders size each splat where its alpha reaches 1/255")
+    setup_render_on_import: BoolProperty(
+        name="Set Up Rendering", default=True,
+        description="On import, set the scene's render settings so splats look like the engine's render "
+                    "(transparent bounces, samples, view transform; each change reported in the Info editor)")
+    colour_mode: EnumProperty(name="Colours", items=COLOUR_ITEMS, default=DEFAULT_COLOUR_MODE,
+                              description="How splat colours meet Blender's colour management")
+    validate_source: StringProperty(name="Dataset", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                                     description="A scene with held-out test views (e.g. NeRF-synthetic) to validate on")
     validate_views: IntProperty(name="Train Views", default=8, min=1, max=200,
                                 description="Training views picked evenly from the dataset's train split")
-    validate_job: StringProperty(name="Validate Job", subtype="DIR_PATH", description="Job folder of the validation run")
+    validate_job: StringProperty(name="Validate Job", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                                 description="Job folder of the validation run")
 
 
 CLASSES = (GSGS_AddonPreferences, GSGS_OT_check_engine, GSGS_SceneSettings)

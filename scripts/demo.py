@@ -217,6 +217,7 @@ def write_blend(out: Path, scene_dir: Path, runs: list[dict]) -> tuple[Path, str
     # the ground-truth geometry stays in the file for comparison, hidden so the splats show
     layer.layer_collection.children["gsgs demo objects"].hide_viewport = True
     try:
+        from gsgs_blender import render_setup
         from gsgs_blender.splat_import import import_splats
     except ImportError as exc:
         note = f"cameras only: gsgs_blender.splat_import is unavailable ({exc})"
@@ -229,11 +230,16 @@ def write_blend(out: Path, scene_dir: Path, runs: list[dict]) -> tuple[Path, str
             demo.scene.collection.children.link(coll)
             names = []
             best = best_run(plys)
+            objs = []
             for r in plys:
                 obj, secs = import_splats(r["ply"], collection=coll, name=f"splats_{r['run']}")
-                obj.hide_set(r is not best)  # show the run with the highest test PSNR
+                obj.hide_set(r is not best)  # show (and render) the run with the highest test PSNR
+                obj.hide_render = r is not best
                 names.append(obj.name)
-            note = "cameras + splats " + ", ".join(names)
+                objs.append(obj)
+            # F12 in demo.blend then renders the splats as the engine does (docs/blender_fidelity.md)
+            changes = render_setup.apply(demo.scene, objects=objs)
+            note = "cameras + splats " + ", ".join(names) + f"; {len(changes)} render settings set for splats"
     path = out / "demo.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path.resolve()), check_existing=False)
     return path, note

@@ -28,16 +28,23 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--photos", required=True, help="folder of photos (no poses needed)")
     p.add_argument("--out", required=True, help="output folder: jobs/ and scene.blend")
     p.add_argument("--python", default=None, help="engine Python with torch (default: the repo's .venv)")
-    p.add_argument("--iters", type=int, default=10000, help="training iterations (default 10000, as the paper)")
-    p.add_argument("--resolution-scale", type=float, default=1.0, help="train on images scaled by this")
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "best"],
+                   help="training settings from the measured accuracy/time front, as the Train panel "
+                        "(default balanced: 1000 iterations, the engine's default); flags below override it")
+    p.add_argument("--iters", type=int, default=None, help="training iterations (default: the preset's)")
+    p.add_argument("--resolution-scale", type=float, default=None,
+                   help="train on images scaled by this (default: the preset's)")
     p.add_argument("--max-image-size", type=int, default=1600, help="SfM works on photos of this longer side")
-    p.add_argument("--prior", default="auto", choices=["auto", "diffusion", "warp", "depth", "none"],
-                   help="generative prior (default auto: diffusion when model folders are given, else warp-inpaint; "
-                        "none: plain 3DGS)")
+    p.add_argument("--prior", default=None, choices=["auto", "diffusion", "warp", "depth", "none"],
+                   help="generative prior (default: the preset's, none = plain 3DGS; auto: diffusion when model "
+                        "folders are given, else warp-inpaint). The path's pseudo poses are used only with a prior")
     p.add_argument("--diffusion-model", default="", help="local Stable Diffusion 1.5-class folder (diffusers)")
     p.add_argument("--depth-adapter", default="", help="local depth T2I-Adapter folder (diffusers)")
     p.add_argument("--pseudo-views", type=int, default=16, help="pseudo poses along a path through the cameras "
                                                                 "(0: none)")
+    p.add_argument("--timeout", type=float, default=0.0,
+                   help="give up on a job (camera solve, training) after this many seconds, cancelling it "
+                        "(default 0: wait until it ends)")
     return p.parse_args(argv)
 
 
@@ -47,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     import bpy
 
     import gsgs_blender
-    from gsgs_blender import preferences
+    from gsgs_blender import preferences, pseudo_paths, train_estimate
     from gsgs_engine.job import Job
 
     out = Path(args.out).resolve()
@@ -72,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         s.photos_dir = str(photos)
         s.max_image_size = args.max_image_size
         print(f"reconstruct: solving cameras for {photos}", flush=True)
-        bpy.ops.gsgs.import_photos()
+        bpy.ops.gsgs.import_photos(timeout=args.timeout)
         cams = [o for o in s.camera_collection.all_objects if o.type == "CAMERA"] if s.camera_collection else []
         print(f"reconstruct: {len(cams)} cameras ({time.monotonic() - t0:.0f} s)", flush=True)
         if args.pseudo_views > 0 and len(cams) >= 2:
@@ -80,11 +87,18 @@ def main(argv: list[str] | None = None) -> int:
             s.pseudo_count = args.pseudo_views
             bpy.ops.gsgs.sample_pseudo_poses()
             print(f"reconstruct: {args.pseudo_views} pseudo poses on the path", flush=True)
-        s.iterations = args.iters
-        s.resolution_scale = args.resolution_scale
-        s.generator = args.prior
-        print(f"reconstruct: training {args.iters} iterations", flush=True)
-        bpy.ops.gsgs.train()
+        s.preset = args.preset
+        if args.iters is not None:
+            s.iterations = args.iters
+        if args.resolution_scale is not None:
+            s.resolution_scale = args.resolution_scale
+        if args.prior is not None:
+            s.generator = args.prior
+        if s.generator == "none" and len(pseudo_paths.poses_from_json(s.pseudo_poses)):
+            print("reconstruct: note: the path's pseudo poses are used only with a prior (--prior auto)", flush=True)
+        print(f"reconstruct: training {s.iterations} iterations (preset {s.preset}); estimated "
+              f"{train_estimate.estimate_text(scene)}", flush=True)
+        bpy.ops.gsgs.train(timeout=args.timeout)
     except RuntimeError as exc:  # an operator reported an error
         print(f"reconstruct: error: {str(exc).strip()}", file=sys.stderr)
         _save(bpy, out)

@@ -15,7 +15,7 @@ from conftest import REPO, shared_scene
 
 bpy = pytest.importorskip("bpy")
 import gsgs_blender  # noqa: E402  (needs bpy)
-from gsgs_blender import camera_convert, job_runner, operators, panels, pseudo_paths  # noqa: E402
+from gsgs_blender import camera_convert, job_runner, operators, ops_common, panels, pseudo_paths  # noqa: E402
 
 pytestmark = pytest.mark.blender
 ADDON_DIR = REPO / "gsgs_blender"
@@ -141,9 +141,13 @@ def test_known_poses_pseudo_path_and_train_job(addon, tmp_path):
         assert view.camera.fx == pytest.approx(cam.fx, rel=1e-6)
         assert Path(view.image_path).resolve() == Path(image)
     settings = job.spec["settings"]
-    assert settings["prior"] == "auto" and settings["prior_settings"]["rounds"] == 3
-    scene.gsgs.generator = "none"
-    assert train_spec(bpy.context)["settings"] == {"iters": 10000, "resolution_scale": 1.0, "prior": "none"}
+    # The panel starts from the balanced preset: the engine's default schedule, not the paper's 10,000 steps.
+    assert settings["preset"] == "balanced" and settings["iters"] == 1000 and settings["prior"] == "none"
+    scene.gsgs.generator = "auto"  # editing a field makes the preset Custom
+    scene.gsgs.rounds = 3
+    assert scene.gsgs.preset == "custom"
+    settings = train_spec(bpy.context)["settings"]
+    assert settings["prior"] == "auto" and settings["prior_settings"]["rounds"] == 3 and settings["iters"] == 1000
 
 
 def test_slerp_orientation_stays_between_neighbours(addon):
@@ -467,7 +471,7 @@ def test_finished_job_imports_its_result_from_the_polling_callback(addon, fake_e
     with pytest.raises(GsgsError, match="imported only after"):
         import_job_result(scene, job.root)  # no status yet
     run = job_runner.start(job.root, sys.executable, engine_root=REPO, use_timer=False,
-                           on_finish=operators.scene_callback(scene.name, _on_train_finished))
+                           on_finish=ops_common.scene_callback(scene.name, _on_train_finished))
     for _ in range(600):  # what bpy.app.timers would call every TIMER_INTERVAL_S
         if job_runner._timer() is None:
             break
@@ -485,7 +489,7 @@ def test_validate_operator_writes_the_job_and_shows_metrics(addon, fake_engine):
     root = Path(bpy.path.abspath(scene.gsgs.validate_job))
     spec = json.loads((root / "seen_spec.json").read_text())
     assert spec["task"] == "validate" and spec["data"]["train_views"] == 8
-    assert spec["settings"]["iters"] == 123 and spec["settings"]["prior"] == "auto"
+    assert spec["settings"]["iters"] == 123 and spec["settings"]["prior"] == "none"  # the balanced preset's
     assert panels._metrics(scene.gsgs.validate_job) == "PSNR 21.50  SSIM 0.800"  # LPIPS null: not shown
 
 

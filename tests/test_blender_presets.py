@@ -13,6 +13,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 from gsgs_blender import job_runner, preferences  # noqa: E402
+from gsgs_blender.preferences import preset_matches  # noqa: E402
 from test_blender_addon import addon  # noqa: E402,F401  (the registered add-on, jobs under tmp_path)
 from gsgs_engine.job import Job, settings_with_preset  # noqa: E402
 from gsgs_engine.presets import PRESET_NAMES, PRESETS, apply_preset  # noqa: E402
@@ -58,7 +59,8 @@ def _off_preset(s, name: str) -> None:
 def test_enum_offers_custom_and_each_preset_with_its_settings_in_the_tooltip(addon):
     items = addon.gsgs.bl_rna.properties["preset"].enum_items
     assert [i.identifier for i in items] == ["custom", *PRESET_NAMES]
-    assert addon.gsgs.preset == "custom"  # a new scene keeps its own fields
+    # A new scene starts from the balanced preset (the engine's default schedule), its fields matching it.
+    assert addon.gsgs.preset == "balanced" and preset_matches(addon.gsgs, "balanced")
     for name in PRESET_NAMES:
         p, tip = PRESETS[name], items[name].description
         for text in (f"{p['iters']} iterations", f"prior {p['prior']}", f"{p['pseudo_views']} pseudo views",

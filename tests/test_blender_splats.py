@@ -11,7 +11,7 @@ from gsgs_engine.cameras import quat_to_rotmat
 from gsgs_engine.io.ply import GaussianPly, write_gaussian_ply
 
 bpy = pytest.importorskip("bpy")
-from gsgs_blender import node_groups, splat_import  # noqa: E402  (needs bpy)
+from gsgs_blender import node_groups, splat_import, splat_material  # noqa: E402  (needs bpy)
 
 pytestmark = pytest.mark.blender
 
@@ -54,8 +54,10 @@ def test_import_any_sh_degree(tmp_path, degree):
     np.testing.assert_allclose(_attr(mesh, "scale", 3), np.exp(g.log_scales), rtol=1e-5)
     q = g.quats_wxyz / np.linalg.norm(g.quats_wxyz, axis=1, keepdims=True)
     np.testing.assert_allclose(_attr(mesh, "rotation", 4), q, atol=1e-6)
-    rgb = np.clip(0.5 + splat_import.SH_C0 * g.sh_dc, 0, 1)
+    rgb = splat_import.srgb_to_linear(np.clip(0.5 + splat_import.SH_C0 * g.sh_dc, 0, 1))  # linear, as Blender
     np.testing.assert_allclose(_attr(mesh, "color", 4)[:, :3], rgb, atol=1e-6)
+    rank = _attr(mesh, "gsgs_lod_rank", 1)
+    assert sorted(np.round(rank * 300).astype(int)) == list(range(300))  # a permutation: 0, 1/n, ...
     rest_names = sorted(a.name for a in mesh.attributes if a.name.startswith("sh_rest_"))
     assert len(rest_names) == {0: 0, 1: 3, 3: 15}[degree]
     for k, name in enumerate(rest_names):
@@ -67,6 +69,8 @@ def test_geometry_nodes_instances_are_oriented_scaled_and_coloured(tmp_path):
     path = tmp_path / "s.ply"
     write_gaussian_ply(path, g)
     obj, _ = splat_import.import_splats(path, max_display=0, size=2.0)
+    node_groups.set_modifier_input(obj.modifiers["GS-GS Splats"], "Dilation", 0.0)  # dilation: its own test
+    obj.update_tag()
     depsgraph = bpy.context.evaluated_depsgraph_get()
     geometry = obj.evaluated_get(depsgraph).evaluated_geometry()  # keep it alive while reading
     instances = geometry.instances_pointcloud()
@@ -75,13 +79,13 @@ def test_geometry_nodes_instances_are_oriented_scaled_and_coloured(tmp_path):
     expected_rs = quat_to_rotmat(g.quats_wxyz) * (2.0 * np.exp(g.log_scales))[:, None, :]
     np.testing.assert_allclose(m[:, :3, :3], expected_rs, atol=1e-5)
     np.testing.assert_allclose(m[:, :3, 3], g.positions, atol=1e-5)
-    # Colour and opacity reach the instance domain, where the material's Instancer attributes read them.
+    # Colour, opacity and proxy size reach the instance domain, where the material's Instancer attributes read them.
     np.testing.assert_allclose(_attr(instances, "opacity", 1), 1 / (1 + np.exp(-g.opacity_logits)), atol=1e-6)
-    np.testing.assert_allclose(_attr(instances, "color", 4)[:, :3], np.clip(0.5 + splat_import.SH_C0 * g.sh_dc, 0, 1),
-                               atol=1e-6)
-    mat = bpy.data.materials[node_groups.MATERIAL_NAME]
+    np.testing.assert_allclose(_attr(instances, "gsgs_proxy", 1), 2.0, atol=1e-6)
+    assert _attr(instances, "gsgs_rgb", 3).shape == (50, 3)
+    mat = bpy.data.materials[splat_material.MATERIAL_NAME]
     names = {n.attribute_name for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeAttribute"}
-    assert names == {"color", "opacity"}
+    assert names == {"gsgs_rgb", "opacity", "gsgs_proxy"}
 
 
 def test_viewport_density_limit_keeps_full_data(tmp_path):
@@ -94,8 +98,16 @@ def test_viewport_density_limit_keeps_full_data(tmp_path):
     assert len(obj.data.vertices) == 2000  # the mesh keeps everything
     depsgraph = bpy.context.evaluated_depsgraph_get()  # the bpy module evaluates for the viewport
     geometry = obj.evaluated_get(depsgraph).evaluated_geometry()
-    shown = len(geometry.instances_pointcloud().points)
-    assert 400 < shown < 600, shown
+    instances = geometry.instances_pointcloud()
+    shown = len(instances.points)
+    assert 500 <= shown <= 501, shown
+    # The most visible (opacity x footprint) are the ones shown, not a random subset.
+    s = np.sort(np.exp(g.log_scales), axis=1)
+    priority = 1 / (1 + np.exp(-g.opacity_logits)) * np.sqrt(s[:, 1] * s[:, 2])
+    threshold = np.sort(priority)[::-1][shown - 1]
+    shown_opacity = _attr(instances, "opacity", 1)
+    assert len(shown_opacity) == shown
+    assert (priority >= threshold - 1e-9).sum() == shown
 
 
 def test_ply_with_reordered_and_extra_properties(tmp_path):
@@ -143,8 +155,8 @@ def test_million_splats_import_in_seconds(tmp_path):
 
 
 def test_render_shows_splat_colour_and_opacity(tmp_path, empty_scene):
-    """Cycles render through the material: an opaque red splat renders red, a 50 % green one half
-    green over black, each at the pixel the engine's camera projects its centre to."""
+    """Cycles render through the material: an opaque red splat renders red (alpha capped at 0.99 as the
+    engine), a 50 % green one half green over black, each at the pixel the engine's camera projects its centre to."""
     from gsgs_blender import camera_convert
     from gsgs_engine.cameras import Camera, look_at
 
@@ -154,7 +166,8 @@ def test_render_shows_splat_colour_and_opacity(tmp_path, empty_scene):
     except TypeError:
         pytest.skip("Cycles is not in this Blender build")
     dc = lambda rgb: (np.array(rgb, float) - 0.5) / splat_import.SH_C0  # noqa: E731
-    g = GaussianPly(positions=[[-0.6, 0, 0], [0.6, 0, 0]], opacity_logits=[12.0, 0.0],
+    # (different depths: exactly coplanar faces of two proxies would let a ray see only one of them)
+    g = GaussianPly(positions=[[-0.6, 0, 0], [0.6, 0.3, 0]], opacity_logits=[12.0, 0.0],
                     log_scales=np.log(np.full((2, 3), 0.4)), quats_wxyz=[[1, 0, 0, 0], [1, 0, 0, 0]],
                     sh_dc=[dc([1, 0, 0]), dc([0, 1, 0])], sh_rest=np.zeros((2, 0, 3)))
     write_gaussian_ply(tmp_path / "two.ply", g)
@@ -164,17 +177,17 @@ def test_render_shows_splat_colour_and_opacity(tmp_path, empty_scene):
     cam_obj = camera_convert.new_camera_object(cam, scene.collection, scene)
     camera_convert.apply_camera_to_object(cam, cam_obj, scene, set_scene_frame=True)
     scene.camera = cam_obj
-    scene.cycles.samples = 16
+    from gsgs_blender import ops_setup
+
+    ops_setup.set_up(scene, "LINEAR")  # linear colours: the EXR holds alpha x linear colour
     scene.cycles.device = "CPU"
-    scene.cycles.use_denoising = False  # the denoiser overshoots on a 64 x 32 image
     scene.world = None  # no world: a black background
-    scene.view_settings.view_transform = "Standard"
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.filepath = str(tmp_path / "render.exr")
     bpy.ops.render.render(write_still=True)
     img = bpy.data.images.load(str(tmp_path / "render.exr"))
     px = np.array(img.pixels[:], dtype=np.float32).reshape(32, 64, 4)[::-1]  # Blender stores bottom row first
     (u_red, v_red), (u_green, v_green) = cam.project(np.asarray(g.positions))[0]
-    np.testing.assert_allclose(px[int(v_red), int(u_red), :3], [1.0, 0.0, 0.0], atol=0.02)
+    np.testing.assert_allclose(px[int(v_red), int(u_red), :3], [0.99, 0.0, 0.0], atol=0.02)  # alpha cap 0.99
     np.testing.assert_allclose(px[int(v_green), int(u_green), :3], [0.0, 0.5, 0.0], atol=0.02)
     assert px[2, 32, :3].max() < 0.01  # background between and above the splats stays black

@@ -1,0 +1,304 @@
+#!/usr/bin/env python
+"""How closely Blender's render of imported splats matches the engine's render (and ground truth).
+
+    python scripts/bench_blender_fidelity.py RESULT DATA [--views 5] [--split test] [--out DIR]
+
+RESULT: a `gsgs train --out` folder, a job's result/ folder, or a point_cloud.ply.
+DATA: the dataset it was trained on (any format `gsgs train` reads).
+For N views picked evenly from the split, the script
+  1. renders the engine's images and writes the ground truth (composited on the background the run
+     trained with), in a separate process with the engine's python (torch);
+  2. imports the PLY with the add-on (gsgs_blender.splat_import: the splat material and geometry
+     nodes), applies the add-on's render set-up (gsgs_blender.render_setup), creates the cameras
+     and renders each view with Cycles (this process: bpy only, no torch), timing each view;
+  3. scores Blender vs engine, Blender vs ground truth and engine vs ground truth (PSNR / SSIM with
+     gsgs_engine.metrics, in the engine process again),
+then prints a table and writes OUT/fidelity.json (and the PNGs under OUT/).
+The script runs in a python that has the `bpy` module (the project's .venv has it); the engine
+steps use --engine-python (default: this python).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("result", help="gsgs train --out folder, result/ folder or point_cloud.ply")
+    p.add_argument("data", help="the dataset the result was trained on")
+    p.add_argument("--views", type=int, default=5, help="test views to compare, picked evenly (default 5)")
+    p.add_argument("--split", default="test", help="dataset split to take the views from (default test)")
+    p.add_argument("--out", default=None, help="output folder (default RESULT_DIR/blender_fidelity)")
+    p.add_argument("--engine-python", default=sys.executable,
+                   help="python with torch and gsgs_engine for the engine steps (default: this one)")
+    p.add_argument("--size", type=float, default=None, help="proxy half-size in sigmas (default: the add-on's)")
+    p.add_argument("--bounces", type=int, default=None, help="Cycles transparent bounces (default: the add-on's)")
+    p.add_argument("--samples", type=int, default=None, help="Cycles samples (default: the add-on's set-up)")
+    p.add_argument("--no-dilation", action="store_true", help="turn the 0.3 px^2 dilation off (ablation)")
+    p.add_argument("--no-exact-projection", action="store_true",
+                   help="render the viewport's 3D cube proxies instead of camera-facing 2D Gaussians (ablation)")
+    p.add_argument("--engine", choices=("CYCLES", "BLENDER_EEVEE"), default="CYCLES",
+                   help="Blender render engine (default CYCLES)")
+    p.add_argument("--colour", choices=("EXACT", "LINEAR"), default=None,
+                   help="colour mode of the render set-up (default: the add-on's)")
+    p.add_argument("--threads", type=int, default=0, help="Cycles threads (0: all cores)")
+    p.add_argument("--engine-step", choices=("render", "metrics"), default=None, help=argparse.SUPPRESS)
+    return p.parse_args(argv)
+
+
+def find_ply(result: Path) -> Path:
+    """RESULT itself when it is a file, else the shallowest point_cloud.ply under it (a job's result/ too)."""
+    from gsgs_engine import GsgsError
+
+    found = [result] if result.is_file() else sorted(result.glob("**/point_cloud.ply"), key=lambda p: len(p.parts))
+    if not found:
+        raise GsgsError(f"{result}: no point_cloud.ply in this folder; pass a `gsgs train --out` folder, "
+                        "a job folder or a PLY")
+    return found[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Engine steps (run in a child process with torch)
+# ---------------------------------------------------------------------------------------------
+def engine_render(ply: Path, data: str, split: str, count: int, out: Path) -> None:
+    """Engine renders + ground truth of `count` evenly picked views; OUT/views.json lists them."""
+    import numpy as np
+    import torch
+
+    from gsgs_engine.gaussians import GaussianModel
+    from gsgs_engine.io import load_scene
+    from gsgs_engine.io.ply import read_gaussian_ply
+    from gsgs_engine.train.evaluate import write_png
+    from gsgs_engine.train.trainer import render_model
+
+    recorded = {}
+    metrics = ply.parent / "metrics.json"
+    if metrics.is_file():
+        recorded = json.loads(metrics.read_text()).get("plan", {})
+    scale = float(recorded.get("resolution_scale", 1.0))
+    background = tuple(float(v) for v in recorded.get("background", (1.0, 1.0, 1.0)))
+    scene = load_scene(data, resolution_scale=scale, background=background)
+    views = scene.split(split)
+    count = max(1, min(count, len(views)))
+    picks = sorted({round(i * (len(views) - 1) / max(count - 1, 1)) for i in range(count)})
+    model = GaussianModel.from_ply(read_gaussian_ply(ply))
+    bg = torch.tensor(background, dtype=torch.float32)
+    out.mkdir(parents=True, exist_ok=True)
+    listed = []
+    for k in picks:
+        view = views[k]
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            img = render_model(model, view.camera, bg, "auto").color.clamp(0.0, 1.0).cpu().numpy()
+        seconds = time.perf_counter() - t0
+        stem = f"view_{k:03d}"
+        write_png(out / f"{stem}_engine.png", img)
+        write_png(out / f"{stem}_gt.png", np.asarray(view.image(), dtype=np.float32))
+        listed.append({"index": k, "name": view.name, "stem": stem, "camera": view.camera.to_dict(),
+                       "engine_seconds": seconds})
+    (out / "views.json").write_text(json.dumps({"background": background, "resolution_scale": scale,
+                                                "sh_degree": model.max_sh_degree,
+                                                "num_gaussians": model.num_gaussians, "views": listed}, indent=1))
+
+
+def engine_metrics(out: Path) -> None:
+    """PSNR / SSIM of every pair (gsgs_engine.metrics) -> OUT/pair_metrics.json."""
+    import cv2
+    import numpy as np
+    import torch
+
+    from gsgs_engine.metrics import psnr, ssim
+
+    def load(path: Path) -> torch.Tensor:
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if img is None:
+            raise OSError(f"{path}: cannot read the image")
+        return torch.from_numpy(cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0)
+
+    listed = json.loads((out / "views.json").read_text())["views"]
+    rows = []
+    for v in listed:
+        imgs = {k: load(out / f"{v['stem']}_{k}.png") for k in ("blender", "engine", "gt")}
+        row = {"stem": v["stem"]}
+        for a, b in (("blender", "engine"), ("blender", "gt"), ("engine", "gt")):
+            row[f"{a}_vs_{b}"] = {"psnr": float(psnr(imgs[a], imgs[b])), "ssim": float(ssim(imgs[a], imgs[b]))}
+        rows.append(row)
+    (out / "pair_metrics.json").write_text(json.dumps(rows, indent=1))
+
+
+def run_engine_step(python: str, step: str, args: list[str]) -> None:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    cmd = [python, str(Path(__file__).resolve()), *args, "--engine-step", step]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"engine step {step!r} failed ({' '.join(cmd)}):\n{done.stderr[-3000:]}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Blender step (this process: bpy, no torch)
+# ---------------------------------------------------------------------------------------------
+def set_world_background(scene, rgb) -> None:
+    """A world of the engine's background colour (given as display sRGB values), seen through every splat."""
+    import bpy
+
+    from gsgs_blender.splat_import import srgb_to_linear
+    import numpy as np
+
+    world = bpy.data.worlds.new("gsgs_fidelity_background")
+    bg = world.node_tree.nodes.get("Background") or world.node_tree.nodes.new("ShaderNodeBackground")
+    lin = np.asarray(rgb, dtype=np.float32)
+    if scene.view_settings.view_transform != "Raw":
+        lin = srgb_to_linear(lin)
+    bg.inputs["Color"].default_value = (float(lin[0]), float(lin[1]), float(lin[2]), 1.0)
+    bg.inputs["Strength"].default_value = 1.0
+    scene.world = world
+
+
+def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None, samples: int | None,
+                   dilation: bool, engine: str, threads: int, colour: str | None = None, exact_projection: bool = True,
+                   progress=print) -> dict:
+    """Import, set up and render every listed view; returns seconds and settings."""
+    import bpy
+
+    from gsgs_blender import node_groups, render_setup, splat_import
+    from gsgs_blender.camera_convert import apply_camera_to_object
+    from gsgs_engine.cameras import Camera
+
+    info = json.loads((out / "views.json").read_text())
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    t0 = time.perf_counter()
+    obj, import_seconds = splat_import.import_splats(ply, size=size)
+    colour = colour or render_setup.DEFAULT_COLOUR_MODE
+    changes = render_setup.apply(scene, colour, objects=[obj])
+    if bounces is not None:
+        scene.cycles.transparent_max_bounces = scene.cycles.min_transparent_bounces = int(bounces)
+    if samples is not None:
+        scene.cycles.samples = int(samples)
+    mod = obj.modifiers[node_groups.MODIFIER_NAME]
+    if not dilation:
+        node_groups.set_modifier_input(mod, "Dilation", 0.0)
+    node_groups.set_modifier_input(mod, "Exact Projection", bool(exact_projection))
+    scene.render.engine = engine
+    scene.cycles.device = "CPU"
+    if threads:
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = threads
+    scene.render.film_transparent = False
+    scene.render.use_persistent_data = True
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.image_settings.color_mode = "RGB"
+    scene.render.image_settings.color_depth = "8"
+    set_world_background(scene, info["background"])
+    cam_data = bpy.data.cameras.new("gsgs_fidelity_camera")
+    cam_obj = bpy.data.objects.new("gsgs_fidelity_camera", cam_data)
+    scene.collection.objects.link(cam_obj)
+    scene.camera = cam_obj
+    per_view = []
+    for v in info["views"]:
+        cam = Camera.from_dict(v["camera"])
+        apply_camera_to_object(cam, cam_obj, scene, set_scene_frame=True)
+        scene.render.filepath = str(out / f"{v['stem']}_blender.png")
+        t = time.perf_counter()
+        bpy.ops.render.render(write_still=True)
+        seconds = time.perf_counter() - t
+        per_view.append(seconds)
+        if progress:
+            progress(f"[fidelity] {v['stem']} ({cam.width}x{cam.height}) rendered in {seconds:.1f} s")
+    return {"import_seconds": import_seconds, "setup_changes": changes, "render_seconds": per_view,
+            "blender_total_seconds": time.perf_counter() - t0,
+            "size": node_groups.get_modifier_input(mod, "Size"),
+            "transparent_bounces": scene.cycles.transparent_max_bounces,
+            "samples": scene.cycles.samples if engine == "CYCLES" else scene.eevee.taa_render_samples,
+            "dilation": node_groups.get_modifier_input(mod, "Dilation"), "render_engine": engine,
+            "colour_mode": colour, "view_transform": scene.view_settings.view_transform,
+            "exact_projection": bool(exact_projection),
+            "blender_version": bpy.app.version_string}
+
+
+def summarise(out: Path, blender: dict) -> dict:
+    info = json.loads((out / "views.json").read_text())
+    pairs = json.loads((out / "pair_metrics.json").read_text())
+
+    def mean(key, metric):
+        return sum(p[key][metric] for p in pairs) / len(pairs)
+
+    summary = {key: {"psnr": mean(key, "psnr"), "ssim": mean(key, "ssim")}
+               for key in ("blender_vs_engine", "blender_vs_gt", "engine_vs_gt")}
+    summary["gt_gap_db"] = summary["engine_vs_gt"]["psnr"] - summary["blender_vs_gt"]["psnr"]
+    summary["seconds_per_view"] = sum(blender["render_seconds"]) / len(blender["render_seconds"])
+    summary["engine_seconds_per_view"] = sum(v["engine_seconds"] for v in info["views"]) / len(info["views"])
+    first = info["views"][0]["camera"]
+    summary.update({"views": [v["name"] for v in info["views"]], "width": first["width"], "height": first["height"],
+                    "num_gaussians": info["num_gaussians"], "sh_degree": info["sh_degree"],
+                    "background": info["background"], "per_view": pairs, "blender": blender})
+    return summary
+
+
+def table(summary: dict) -> str:
+    lines = ["| comparison | PSNR (dB) | SSIM |", "|---|---|---|"]
+    for key, label in (("blender_vs_engine", "Blender vs engine"), ("blender_vs_gt", "Blender vs ground truth"),
+                       ("engine_vs_gt", "engine vs ground truth")):
+        lines.append(f"| {label} | {summary[key]['psnr']:.2f} | {summary[key]['ssim']:.4f} |")
+    b = summary["blender"]
+    proxies = "camera-facing 2D Gaussians" if b["exact_projection"] else f"3D cube proxies of {b['size']:g} sigma"
+    lines.append("")
+    lines.append(f"{len(summary['views'])} views at {summary['width']}x{summary['height']}, "
+                 f"{summary['num_gaussians']} Gaussians, SH degree {summary['sh_degree']}; "
+                 f"{b['render_engine']} {b['samples']} sample(s), {b['transparent_bounces']} transparent bounces, "
+                 f"{b['colour_mode'].lower()} colours ({b['view_transform']}), "
+                 f"{proxies}, "
+                 f"dilation {b['dilation']:g} px^2: "
+                 f"{summary['seconds_per_view']:.2f} s per view (engine {summary['engine_seconds_per_view']:.2f} s); "
+                 f"import {b['import_seconds']:.2f} s; "
+                 f"gap to the engine vs ground truth {summary['gt_gap_db']:+.2f} dB")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> dict:
+    ply = find_ply(Path(args.result)).resolve()
+    out = Path(args.out) if args.out else ply.parent / "blender_fidelity"
+    out = out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    common = [str(ply), str(Path(args.data).resolve()), "--views", str(args.views), "--split", args.split,
+              "--out", str(out)]
+    print(f"[fidelity] engine renders of {args.views} {args.split} views ...", flush=True)
+    run_engine_step(args.engine_python, "render", common)
+    blender = blender_render(ply, out, args.size, args.bounces, args.samples, not args.no_dilation, args.engine,
+                             args.threads, args.colour, not args.no_exact_projection)
+    run_engine_step(args.engine_python, "metrics", common)
+    summary = summarise(out, blender)
+    summary.update({"ply": str(ply), "data": str(args.data), "split": args.split})
+    (out / "fidelity.json").write_text(json.dumps(summary, indent=1))
+    print(table(summary))
+    print(f"written {out / 'fidelity.json'}")
+    return summary
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    if args.engine_step == "render":
+        engine_render(Path(args.result), args.data, args.split, args.views, Path(args.out))
+        return 0
+    if args.engine_step == "metrics":
+        engine_metrics(Path(args.out))
+        return 0
+    run(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
