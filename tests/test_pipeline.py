@@ -163,6 +163,32 @@ def test_empty_pixels_of_pseudo_views_get_gaussians_in_photo_scenes(tmp_path):
     assert model.num_gaussians == trainer.config.densify_config.max_gaussians
 
 
+def test_seeding_is_bounded_per_round_and_coarser_at_high_resolution(tmp_path, monkeypatch):
+    """A 514-Gaussian photo model at 1600 px once got 610k seeds in one round (issue 15)."""
+    from dataclasses import replace as dc_replace
+
+    import gsgs_engine.train.techniques.prior_loop as prior_loop
+    from gsgs_engine.train.techniques.prior_loop import PriorLoop, seed_stride
+    from test_trainer import make_trainer
+
+    cam = make_trainer().scene.views[0].camera
+    assert seed_stride(dc_replace(cam, width=504, height=378)) == 4  # llff_flower's size: unchanged
+    assert seed_stride(dc_replace(cam, width=1600, height=871)) == 12
+    trainer = make_trainer(iters=40, backend="reference", sh_degree=1)
+    trainer.setup()
+    prior = PriorConfig(prior="warp", num_pseudo=3, rounds=1, depth_reg=False)
+    loop = PriorLoop(prior, resolve_prior_plan(prior, 3), tmp_path, log=lambda m: None)
+    trainer.add_technique(loop)
+    with torch.no_grad():
+        renders = [trainer.render(p.camera) for p in loop.pseudo]
+    images = [r.color.clone() for r in renders]
+    monkeypatch.setattr(prior_loop, "SEED_ROUND_MIN", 5)
+    n0 = trainer.model.num_gaussians
+    added = loop._fill_empty_with_gaussians(renders, images, stride=1)
+    assert added == min(n0, sum(int((r.alpha <= 0.5).sum()) for r in renders))  # at most the model's own size
+    assert trainer.model.num_gaussians == n0 + added <= 2 * n0
+
+
 def test_prior_flags_reach_the_config_and_the_plan():
     import argparse
 

@@ -93,6 +93,18 @@ def orbit_focus(cameras) -> np.ndarray | None:
     return focus if how == "optical axes intersection" else None
 
 
+SEED_STRIDE = 4  # grid of seeded Gaussians, in pixels at SEED_REFERENCE_SIZE
+SEED_REFERENCE_SIZE = 512  # long image side at which the grid is SEED_STRIDE pixels
+SEED_ROUND_MIN = 20_000  # a round may always seed this many, and otherwise at most the model's own size
+
+
+def seed_stride(camera, stride: int = SEED_STRIDE) -> int:
+    """Grid spacing in pixels for seeding: `stride` up to SEED_REFERENCE_SIZE px, proportionally coarser above,
+    so a view contributes at most about (SEED_REFERENCE_SIZE / stride)^2 seeds whatever its resolution."""
+    long_side = max(camera.width, camera.height)
+    return max(int(stride), int(round(stride * long_side / SEED_REFERENCE_SIZE)))
+
+
 class PriorLoop(Technique):
     """Alg. 1's rounds; installs the pseudo-view technique and, with a depth source, the depth regulariser."""
 
@@ -244,10 +256,16 @@ class PriorLoop(Technique):
         stats["empty_filled_fraction"] = float(np.mean([s["empty_filled"] for s in cover])) if cover else 0.0
         return images
 
-    def _fill_empty_with_gaussians(self, renders, images, stride: int = 4) -> int:
-        """Seed Gaussians where pseudo views show nothing: on a `stride`-pixel grid of the empty pixels,
-        at the depth filled in from the surface around them, coloured by the pseudo target. Without
-        them the filled targets could only be reached by stretching the Gaussians at the edges."""
+    def _fill_empty_with_gaussians(self, renders, images, stride: int = SEED_STRIDE) -> int:
+        """Seed Gaussians where pseudo views show nothing: on a grid of the empty pixels, at the depth
+        filled in from the surface around them, coloured by the pseudo target. Without them the filled
+        targets could only be reached by stretching the Gaussians at the edges.
+
+        The grid is `stride` pixels at SEED_REFERENCE_SIZE px on the long side and proportionally
+        coarser above, and one round adds at most max(the model's size, SEED_ROUND_MIN) Gaussians
+        (an even subsample of the grid): a 100-step photo job at 1600 px had seeded 610k Gaussians onto
+        514 in one round (issue 15), which no later step could train. Measured llff_flower (504 px,
+        1000 steps) seeded 5.5k into a model of tens of thousands: neither bound changes it."""
         from gsgs_engine.gaussians import inverse_sigmoid, num_sh_coeffs, rgb_to_sh_dc
         from gsgs_engine.priors.warp import unproject
         from gsgs_engine.priors.warp_inpaint import fill_empty_depth, surface_depth
@@ -262,17 +280,19 @@ class PriorLoop(Technique):
             if not bool(empty.any()) or bool(empty.all()):
                 continue
             zf = fill_empty_depth(z)
+            step = seed_stride(p.camera, stride)
             grid = torch.zeros_like(empty)
-            grid[stride // 2::stride, stride // 2::stride] = True
+            grid[step // 2::step, step // 2::step] = True
             pick = empty & grid
             points.append(unproject(p.camera, zf)[pick])
             colours.append(img[pick])
-            sizes.append(zf[pick] * stride / p.camera.fx)
+            sizes.append(zf[pick] * step / p.camera.fx)
         if not points:
             return 0
         means, colours, sizes = torch.cat(points).float(), torch.cat(colours).float(), torch.cat(sizes).float()
-        budget = max(0, tr.config.densify_config.max_gaussians - model.num_gaussians)
-        if means.shape[0] > budget:  # the model's size cap holds for seeded Gaussians too: an even subsample
+        budget = max(0, min(tr.config.densify_config.max_gaussians - model.num_gaussians,
+                            max(model.num_gaussians, SEED_ROUND_MIN)))
+        if means.shape[0] > budget:  # the round's and the model's size caps hold for seeded Gaussians: an even subsample
             keep = torch.linspace(0, means.shape[0] - 1, budget).round().long() if budget else torch.zeros(0).long()
             means, colours, sizes = means[keep], colours[keep], sizes[keep]
         n = means.shape[0]
