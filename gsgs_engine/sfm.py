@@ -535,6 +535,10 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
     extraction.max_image_size = p["max_image_size"]
     extraction.num_threads = p["num_threads"]
     mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+    # Image ids in name order: threaded extraction would number photos as they finish, and the
+    # mappers visit photos by id, so the same photos could give different cameras run to run.
+    pycolmap.Database.open(db_path).close()
+    pycolmap.import_images(db_path, photo_dir, camera_mode=mode, image_names=names, options=reader)
     pycolmap.extract_features(db_path, photo_dir, image_names=names, camera_mode=mode, reader_options=reader,
                               extraction_options=extraction, device=device)
 

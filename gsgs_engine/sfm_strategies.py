@@ -228,6 +228,7 @@ def global_options(pycolmap, small: bool, min_inliers: int):
         m.retriangulation.ignore_two_view_tracks = False
         options.num_threads = 1
         m.num_threads = 1
+        m.bundle_adjustment.ceres.solver_options.num_threads = 1
     options.random_seed = SEED
     m.random_seed = SEED
     m.rotation_averaging.random_seed = SEED
