@@ -177,3 +177,58 @@ def test_a_photo_that_matches_nothing_is_named_for_a_retake(tmp_path):
     # Stragglers tried to place the missing photo into the best model (and could not: no matches).
     stragglers = [a for a in report["attempts"] if a["strategy"].endswith(" + stragglers")]
     assert len(stragglers) == 1 and stragglers[0]["registered"] == 3
+
+
+def _exif_app1(make: str, model: str, focal_mm: float, focal_35mm: int) -> bytes:
+    """A JPEG APP1 segment with a minimal little-endian EXIF block: IFD0 Make and Model, and an
+    EXIF IFD with FocalLength and FocalLengthIn35mmFilm (what COLMAP reads to tell cameras apart)."""
+    import struct
+
+    def entry(tag, kind, count, value):
+        return struct.pack("<HHII", tag, kind, count, value)
+
+    make_b, model_b = make.encode() + b"\0", model.encode() + b"\0"
+    ifd0 = 8
+    make_at = ifd0 + 2 + 12 * 3 + 4
+    model_at = make_at + len(make_b)
+    exif_at = model_at + len(model_b)
+    focal_at = exif_at + 2 + 12 * 2 + 4
+    tiff = b"II" + struct.pack("<HI", 42, ifd0)
+    tiff += struct.pack("<H", 3) + entry(0x010F, 2, len(make_b), make_at) + entry(0x0110, 2, len(model_b), model_at)
+    tiff += entry(0x8769, 4, 1, exif_at) + struct.pack("<I", 0) + make_b + model_b
+    tiff += struct.pack("<H", 2) + entry(0x920A, 5, 1, focal_at) + struct.pack("<HHIHH", 0xA405, 3, 1, focal_35mm, 0)
+    tiff += struct.pack("<I", 0) + struct.pack("<II", int(round(focal_mm * 100)), 100)
+    payload = b"Exif\0\0" + tiff
+    return b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload
+
+
+def test_photos_whose_exif_names_different_cameras_get_their_own_cameras(tmp_path):
+    import cv2
+
+    src = sorted((shared_scene("llff_flower") / "images_8").iterdir())
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    bodies = [("Canon", "EOS 5D", 24.0, 24), ("Canon", "EOS 5D", 24.0, 24), ("Sony", "ILCE-7", 50.0, 50)]
+    for i, (make, model, mm, mm35) in zip((1, 2, 3), bodies):
+        ok, jpeg = cv2.imencode(".jpg", cv2.imread(str(src[i])), [cv2.IMWRITE_JPEG_QUALITY, 95])
+        data = jpeg.tobytes()
+        (photos / f"{i}.jpg").write_bytes(data[:2] + _exif_app1(make, model, mm, mm35) + data[2:])
+    out = tmp_path / "out"
+    try:
+        notes = run_sfm(photos, out).notes
+    except GsgsError:  # a per-photo camera may not solve from 3 frames; the report still says why
+        notes = None
+    report = json.loads((out / "sfm_report.json").read_text())
+    assert report["single_camera"] is False
+    note = next(n for n in report["notes"] if "EXIF" in n)
+    assert "2 different cameras or focal lengths" in note and "Canon" in note and "Sony" in note
+    assert notes is None or note in notes
+    # The same body and lens throughout: one shared camera, no note.
+    for i, jpg in enumerate(sorted(photos.iterdir())):
+        data = jpg.read_bytes()
+        app1_len = int.from_bytes(data[4:6], "big")
+        jpg.write_bytes(data[:2] + _exif_app1(*bodies[0]) + data[4 + app1_len:])
+    result = run_sfm(photos, out)
+    report = json.loads(result.report_path.read_text())
+    assert report["single_camera"] is True and not any("EXIF" in n for n in report["notes"])
+    assert result.num_registered == 3
