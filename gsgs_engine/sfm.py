@@ -179,8 +179,9 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
     report_path = out_dir / "sfm_report.json"
     report_path.write_text(json.dumps(report, indent=2))
     if not raw["model_sizes"]:
+        tried = ", ".join(a["strategy"] for a in raw["attempts"]) or "none"
         raise SfmFailed(f"{photo_dir}: no reconstruction could be built from {len(names)} photos "
-                        f"({_failure_digest(views)}); take more photos with more overlap (60-80% between "
+                        f"({_failure_digest(views)}; strategies tried: {tried}); take more photos with more overlap (60-80% between "
                         "neighbours), move the camera between shots rather than only rotating it, "
                         "and avoid blank or blurry frames", views, report_path)
     cameras, image_paths = [], []

@@ -123,6 +123,8 @@ def test_identical_blank_images_give_a_report_not_a_crash(tmp_path, capsys):
     assert "registered 0/2 views" in lines
     assert any(line.strip().startswith("blank_0.png: no features") for line in lines)
     assert "no reconstruction could be built" in captured.err and "more overlap" in captured.err
+    assert "strategies tried: incremental 4deg, incremental 2deg, incremental 1deg, incremental 0.5deg, global" \
+        in captured.err
     report = json.loads((out / "sfm_report.json").read_text())
     assert report["registered"] == 0 and report["total"] == 2 and report["models"] == []
     assert [v["reason"].split(":")[0] for v in report["views"]] == ["no features", "no features"]
