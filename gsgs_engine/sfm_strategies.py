@@ -31,6 +31,9 @@ from typing import Callable
 STRATEGIES = ("incremental", "global", "stragglers")
 INCREMENTAL_ANGLES = (4.0, 2.0, 1.0, 0.5)  # init_min_tri_angle ladder (degrees) for small sets
 SEED = 0
+# A "model" with fewer points than this places cameras without structure (the incremental
+# mapper can register 3 photos and then filter every point away); it is not a solution.
+MIN_POINTS = 20
 
 DESCRIPTIONS = {
     "incremental": "incremental mapping",
@@ -80,7 +83,7 @@ def pick_best(attempts: list[Attempt]) -> Attempt | None:
     """The best attempt with a model (first one wins a tie: it was the cheaper), or None."""
     best = None
     for a in attempts:
-        if a.registered < 2:
+        if a.registered < 2 or a.num_points < MIN_POINTS:
             continue
         if best is None or rank_key(a) > rank_key(best):
             best = a
@@ -89,7 +92,7 @@ def pick_best(attempts: list[Attempt]) -> Attempt | None:
 
 def why_best(best: Attempt, attempts: list[Attempt], total: int) -> str:
     """One sentence: why this attempt won against the others."""
-    others = [a for a in attempts if a is not best and a.registered >= 2]
+    others = [a for a in attempts if a is not best and a.registered >= 2 and a.num_points >= MIN_POINTS]
     if not others:
         return f"the only strategy that built a model ({best.registered}/{total} photos)"
     fewer = [a for a in others if a.registered < best.registered]
@@ -166,6 +169,9 @@ def _run(pycolmap, label: str, work: Path, mapper) -> Attempt:
     if not models:
         return Attempt(label, 0, 0, None, seconds, note="no model")
     rec = max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+    if rec.num_points3D() < MIN_POINTS:
+        return Attempt(label, int(rec.num_reg_images()), int(rec.num_points3D()), None, seconds,
+                       note=f"degenerate: {rec.num_points3D()} points for {rec.num_reg_images()} photos")
     best_dir = out / "best"
     best_dir.mkdir(exist_ok=True)
     rec.write(best_dir)

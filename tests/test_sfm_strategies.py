@@ -38,6 +38,8 @@ def test_best_attempt_registers_most_then_lowest_error_then_most_points():
     assert "tied with global" in why_best(b, [b, f], 3)
     assert why_best(d, [a, d], 3) == "the only strategy that built a model (2/3 photos)"
     assert "more than any other strategy" in why_best(c, [d, c], 3)
+    degenerate = Attempt("incremental 1deg", 3, 0, None, 0.1, note="degenerate: 0 points for 3 photos")
+    assert pick_best([degenerate, d]) is d  # cameras without structure are no solution
     assert describe("incremental 0.5deg + stragglers") == (
         "incremental mapping (initial pair at least 0.5 degrees apart) + straggler registration with relaxed "
         "absolute-pose thresholds")

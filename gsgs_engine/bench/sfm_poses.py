@@ -347,6 +347,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-repeat", action="store_true", help="skip the second run of each subset")
     parser.add_argument("--train-iters", type=int, default=0,
                         help="also train on flower's 3 views with given vs estimated poses for N iterations")
+    parser.add_argument("--train-only", action="store_true",
+                        help="with --train-iters: only the training comparison, written to STEM_training.json")
+    parser.add_argument("--training-json", type=Path, default=None,
+                        help="include a training comparison measured earlier (a STEM_training.json)")
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "sfm_poses",
                         help="output stem: writes STEM.md and STEM.json (default docs/sfm_poses)")
     parser.add_argument("--note", default="", help="text for the table's header (machine, what else ran)")
@@ -354,10 +358,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     started = time.time()
+    if args.train_only:
+        if args.train_iters < 1:
+            raise GsgsError("--train-only needs --train-iters N (N >= 1)")
+        with tempfile.TemporaryDirectory(prefix="gsgs_bench_sfm_train_") as tmp:
+            training = train_gap(args.data, Path(tmp), args.train_iters, log=lambda m: print(m, flush=True))
+        training["seconds"] = round(time.time() - started, 1)
+        path = Path(f"{args.out}_training.json")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(training, indent=1))
+        print(f"PSNR gap (estimated - given poses): {training['psnr_gap']:+.2f} dB; wrote {path}")
+        return 0
     rows = run_benchmark(args.data, args.scenes, args.sizes, args.layouts, args.seeds, repeat=not args.no_repeat,
                          log=lambda m: print(m, flush=True))
     summary = summarise(rows)
-    training = None
+    training = json.loads(args.training_json.read_text()) if args.training_json else None
     if args.train_iters > 0:
         with tempfile.TemporaryDirectory(prefix="gsgs_bench_sfm_train_") as tmp:
             training = train_gap(args.data, Path(tmp), args.train_iters, log=lambda m: print(m, flush=True))
