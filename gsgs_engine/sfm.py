@@ -522,12 +522,19 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
     device = pycolmap.Device.cpu if not pycolmap.has_cuda else pycolmap.Device.auto
     notes = []
     single_camera = p["single_camera"]
+    fix_focal = False
     if single_camera:
-        cameras_seen = _exif_cameras(pycolmap, photo_dir, names)
+        cameras_seen, focals = _exif_cameras(pycolmap, photo_dir, names)
         if len(cameras_seen) > 1:
             single_camera = False
             notes.append(f"the photos' EXIF names {len(cameras_seen)} different cameras or focal lengths "
                          f"({'; '.join(sorted(cameras_seen))}), so each photo got its own camera")
+        elif small and len(focals) == len(names):
+            # A few photos close together barely constrain the focal length: refined, it drifts
+            # (flower frames 15-17: 2 degrees and 15% of the rig off); the camera's own is better.
+            fix_focal = True
+            notes.append(f"focal length {focals[0]:.0f} px from the photos' EXIF kept fixed "
+                         f"({len(names)} photos barely constrain it)")
 
     emit("features", f"extracting SIFT features from {len(names)} photos (longest side {p['max_image_size']} px)")
     reader = pycolmap.ImageReaderOptions()
@@ -559,7 +566,7 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
                                   device=device)
 
     best, attempts = sfm_strategies.solve(pycolmap, db_path, photo_dir, distorted / "sparse", len(names), small,
-                                          verification.min_num_inliers, emit, p["strategies"])
+                                          verification.min_num_inliers, emit, p["strategies"], fix_focal)
     recs = {a.strategy: pycolmap.Reconstruction(a.model_dir) for a in attempts if a.model_dir}
     views = _view_reports(pycolmap, db_path, names, best, attempts, recs, verification.min_num_inliers)
     solve_info = {"single_camera": single_camera, "notes": notes,
@@ -605,16 +612,19 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
             "mean_reprojection_error": float(rec.compute_mean_reprojection_error()), **solve_info}
 
 
-def _exif_cameras(pycolmap, photo_dir: Path, names: list[str]) -> set[str]:
-    """Distinct 'camera model, focal length' EXIF identities among the photos that carry EXIF."""
-    seen = set()
+def _exif_cameras(pycolmap, photo_dir: Path, names: list[str]) -> tuple[set[str], list[float]]:
+    """Distinct 'camera model, focal length' EXIF identities among the photos that carry EXIF,
+    and the focal lengths (px) of the photos whose EXIF gives one."""
+    seen, focals = set(), []
     for name in names:
         bitmap = pycolmap.Bitmap.read(str(photo_dir / name), False)
         model = bitmap.exif_camera_model() if bitmap is not None else None
         focal = bitmap.exif_focal_length() if bitmap is not None else None
+        if focal:
+            focals.append(float(focal))
         if model or focal:
             seen.add(f"{model or 'unknown camera'}, focal {focal:.4g}" if focal else f"{model}, focal unknown")
-    return seen
+    return seen, focals
 
 
 def _view_reports(pycolmap, db_path: Path, names: list[str], best, attempts: list, recs: dict,

@@ -117,9 +117,11 @@ def why_best(best: Attempt, attempts: list[Attempt], total: int) -> str:
 # Strategies (child process only)
 # ---------------------------------------------------------------------------------------
 def solve(pycolmap, db_path: Path, photo_dir: Path, work: Path, num_images: int, small: bool, min_inliers: int,
-          emit: Callable[[str, str], None], strategies=STRATEGIES) -> tuple[Attempt | None, list[Attempt]]:
+          emit: Callable[[str, str], None], strategies=STRATEGIES,
+          fix_focal: bool = False) -> tuple[Attempt | None, list[Attempt]]:
     """Run the strategies named in `strategies` (a subset of STRATEGIES, run in STRATEGIES order)
-    and return (best attempt or None, every attempt). Models land in work/<strategy>/."""
+    and return (best attempt or None, every attempt). Models land in work/<strategy>/.
+    `fix_focal`: keep the cameras' focal length (from EXIF) instead of refining it."""
     unknown = set(strategies) - set(STRATEGIES)
     if unknown:
         raise ValueError(f"unknown SfM strategies {sorted(unknown)}; choose from {STRATEGIES}")
@@ -136,7 +138,7 @@ def solve(pycolmap, db_path: Path, photo_dir: Path, work: Path, num_images: int,
             emit("mapping", f"{label}: {DESCRIPTIONS['incremental']}"
                  + ("" if angle is None else f", initial pair at least {angle:g} degrees apart"))
             attempt = _run(pycolmap, label, work, lambda out, a=angle: _incremental(
-                pycolmap, db_path, photo_dir, out, small, min_inliers, a))
+                pycolmap, db_path, photo_dir, out, small, min_inliers, a, fix_focal=fix_focal))
             attempts.append(attempt)
             if attempt.registered == num_images:
                 break  # a smaller angle only ever helps to register more
@@ -147,14 +149,14 @@ def solve(pycolmap, db_path: Path, photo_dir: Path, work: Path, num_images: int,
         else:
             emit("mapping", f"global: {DESCRIPTIONS['global']}")
             attempts.append(_run(pycolmap, "global", work, lambda out: _global(
-                pycolmap, db_path, photo_dir, out, small, min_inliers)))
+                pycolmap, db_path, photo_dir, out, small, min_inliers, fix_focal)))
     best = pick_best(attempts)
     if "stragglers" in strategies and best is not None and best.registered < num_images:
         missing = num_images - best.registered
         emit("mapping", f"stragglers: registering {missing} photo(s) left out by {best.strategy}")
         attempts.append(_run(pycolmap, f"{best.strategy} + stragglers", work, lambda out: _incremental(
             pycolmap, db_path, photo_dir, out, small, min_inliers, INCREMENTAL_ANGLES[-1] if small else None,
-            input_path=Path(best.model_dir), relaxed=True)))
+            input_path=Path(best.model_dir), relaxed=True, fix_focal=fix_focal)))
         best = pick_best(attempts)
     return best, attempts
 
@@ -180,7 +182,8 @@ def _run(pycolmap, label: str, work: Path, mapper) -> Attempt:
                    None if error is None else float(error), seconds, model_dir=str(best_dir))
 
 
-def incremental_options(pycolmap, small: bool, min_inliers: int, angle: float | None = None, relaxed: bool = False):
+def incremental_options(pycolmap, small: bool, min_inliers: int, angle: float | None = None, relaxed: bool = False,
+                        fix_focal: bool = False):
     """COLMAP's defaults assume dozens of photos; with 2-10 the initial pair must be allowed
     fewer inliers and a smaller baseline, and two-view tracks are most of the structure.
     `relaxed`: stragglers may register from fewer, less consistent 2D-3D matches."""
@@ -199,6 +202,9 @@ def incremental_options(pycolmap, small: bool, min_inliers: int, angle: float | 
         options.mapper.abs_pose_max_error = 16.0
         options.mapper.max_reg_trials = 10
         options.structure_less_registration_fallback = True
+    if fix_focal:
+        options.ba_refine_focal_length = False
+        options.mapper.abs_pose_refine_focal_length = False
     _seed_incremental(options, small)
     return options
 
@@ -215,15 +221,17 @@ def _seed_incremental(options, small: bool) -> None:
 
 
 def _incremental(pycolmap, db_path, photo_dir, out, small, min_inliers, angle, input_path: Path | None = None,
-                 relaxed: bool = False):
-    options = incremental_options(pycolmap, small, min_inliers, angle, relaxed)
+                 relaxed: bool = False, fix_focal: bool = False):
+    options = incremental_options(pycolmap, small, min_inliers, angle, relaxed, fix_focal)
     return pycolmap.incremental_mapping(db_path, photo_dir, out, options=options,
                                         input_path=str(input_path) if input_path else "")
 
 
-def global_options(pycolmap, small: bool, min_inliers: int):
+def global_options(pycolmap, small: bool, min_inliers: int, fix_focal: bool = False):
     options = pycolmap.GlobalPipelineOptions()
     m = options.mapper
+    if fix_focal:
+        m.bundle_adjustment.refine_focal_length = False
     if small:
         options.min_num_matches = min_inliers
         options.min_model_size = 2
@@ -243,5 +251,6 @@ def global_options(pycolmap, small: bool, min_inliers: int):
     return options
 
 
-def _global(pycolmap, db_path, photo_dir, out, small, min_inliers):
-    return pycolmap.global_mapping(db_path, photo_dir, out, options=global_options(pycolmap, small, min_inliers))
+def _global(pycolmap, db_path, photo_dir, out, small, min_inliers, fix_focal=False):
+    return pycolmap.global_mapping(db_path, photo_dir, out,
+                                   options=global_options(pycolmap, small, min_inliers, fix_focal))

@@ -16,7 +16,8 @@ import pytest
 
 from conftest import REPO, shared_scene
 from gsgs_engine import GsgsError
-from gsgs_engine.bench.sfm_poses import camera_into_frame, pose_errors, similarity_to_reference, subset
+from gsgs_engine.bench.sfm_poses import (camera_into_frame, exif_app1, pose_errors, similarity_to_reference, subset,
+                                         write_jpeg_with_exif)
 from gsgs_engine.cameras import Camera, look_at
 from gsgs_engine.sfm import run_sfm
 from gsgs_engine.sfm_strategies import Attempt, describe, pick_best, why_best
@@ -181,29 +182,6 @@ def test_a_photo_that_matches_nothing_is_named_for_a_retake(tmp_path):
     assert len(stragglers) == 1 and stragglers[0]["registered"] == 3
 
 
-def _exif_app1(make: str, model: str, focal_mm: float, focal_35mm: int) -> bytes:
-    """A JPEG APP1 segment with a minimal little-endian EXIF block: IFD0 Make and Model, and an
-    EXIF IFD with FocalLength and FocalLengthIn35mmFilm (what COLMAP reads to tell cameras apart)."""
-    import struct
-
-    def entry(tag, kind, count, value):
-        return struct.pack("<HHII", tag, kind, count, value)
-
-    make_b, model_b = make.encode() + b"\0", model.encode() + b"\0"
-    ifd0 = 8
-    make_at = ifd0 + 2 + 12 * 3 + 4
-    model_at = make_at + len(make_b)
-    exif_at = model_at + len(model_b)
-    focal_at = exif_at + 2 + 12 * 2 + 4
-    tiff = b"II" + struct.pack("<HI", 42, ifd0)
-    tiff += struct.pack("<H", 3) + entry(0x010F, 2, len(make_b), make_at) + entry(0x0110, 2, len(model_b), model_at)
-    tiff += entry(0x8769, 4, 1, exif_at) + struct.pack("<I", 0) + make_b + model_b
-    tiff += struct.pack("<H", 2) + entry(0x920A, 5, 1, focal_at) + struct.pack("<HHIHH", 0xA405, 3, 1, focal_35mm, 0)
-    tiff += struct.pack("<I", 0) + struct.pack("<II", int(round(focal_mm * 100)), 100)
-    payload = b"Exif\0\0" + tiff
-    return b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload
-
-
 def test_photos_whose_exif_names_different_cameras_get_their_own_cameras(tmp_path):
     import cv2
 
@@ -214,7 +192,7 @@ def test_photos_whose_exif_names_different_cameras_get_their_own_cameras(tmp_pat
     for i, (make, model, mm, mm35) in zip((1, 2, 3), bodies):
         ok, jpeg = cv2.imencode(".jpg", cv2.imread(str(src[i])), [cv2.IMWRITE_JPEG_QUALITY, 95])
         data = jpeg.tobytes()
-        (photos / f"{i}.jpg").write_bytes(data[:2] + _exif_app1(make, model, mm, mm35) + data[2:])
+        (photos / f"{i}.jpg").write_bytes(data[:2] + exif_app1(make, model, mm, mm35) + data[2:])
     out = tmp_path / "out"
     try:
         notes = run_sfm(photos, out).notes
@@ -229,8 +207,26 @@ def test_photos_whose_exif_names_different_cameras_get_their_own_cameras(tmp_pat
     for i, jpg in enumerate(sorted(photos.iterdir())):
         data = jpg.read_bytes()
         app1_len = int.from_bytes(data[4:6], "big")
-        jpg.write_bytes(data[:2] + _exif_app1(*bodies[0]) + data[4 + app1_len:])
+        jpg.write_bytes(data[:2] + exif_app1(*bodies[0]) + data[4 + app1_len:])
     result = run_sfm(photos, out)
     report = json.loads(result.report_path.read_text())
-    assert report["single_camera"] is True and not any("EXIF" in n for n in report["notes"])
+    assert report["single_camera"] is True and not any("different cameras" in n for n in report["notes"])
+    assert any("from the photos' EXIF kept fixed" in n for n in report["notes"])
     assert result.num_registered == 3
+
+
+def test_exif_focal_length_pins_down_a_close_triplet(tmp_path):
+    # Flower frames 15-17 without EXIF: every strategy refines the focal length to a wrong value
+    # (2 degrees and 14% of the rig off). With the focal length a camera would write, kept fixed:
+    from gsgs_engine.bench.sfm_poses import _given_cameras
+
+    given, paths = _given_cameras(shared_scene("llff_flower"))
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in (15, 16, 17):
+        write_jpeg_with_exif(paths[i], photos / f"{paths[i].stem}.jpg", given[i].fx)
+    result = run_sfm(photos, tmp_path / "out")
+    assert result.num_registered == 3 and any("EXIF kept fixed" in n for n in result.notes)
+    by_name = {f"{p.stem}.jpg": c for p, c in zip(paths, given)}
+    err = pose_errors(result.cameras, [by_name[c.name] for c in result.cameras])
+    assert err["median_rotation_deg"] < 1.0 and err["median_centre_pct"] < 5.0, err

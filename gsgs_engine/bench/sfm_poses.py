@@ -110,6 +110,47 @@ def camera_into_frame(ref_cam: Camera, s: float, Q: np.ndarray, T: np.ndarray, n
     return ref_cam.with_pose(R, t, name=name or ref_cam.name)
 
 
+def exif_app1(make: str, model: str, focal_mm: float, focal_35mm: int) -> bytes:
+    """A JPEG APP1 segment holding a minimal little-endian EXIF block: IFD0 Make and Model, and
+    an EXIF IFD with FocalLength and FocalLengthIn35mmFilm (what COLMAP reads for a focal prior
+    and to tell cameras apart)."""
+    import struct
+
+    def entry(tag, kind, count, value):
+        return struct.pack("<HHII", tag, kind, count, value)
+
+    make_b, model_b = make.encode() + b"\0", model.encode() + b"\0"
+    ifd0 = 8
+    make_at = ifd0 + 2 + 12 * 3 + 4
+    model_at = make_at + len(make_b)
+    exif_at = model_at + len(model_b)
+    focal_at = exif_at + 2 + 12 * 2 + 4
+    tiff = b"II" + struct.pack("<HI", 42, ifd0)
+    tiff += struct.pack("<H", 3) + entry(0x010F, 2, len(make_b), make_at) + entry(0x0110, 2, len(model_b), model_at)
+    tiff += entry(0x8769, 4, 1, exif_at) + struct.pack("<I", 0) + make_b + model_b
+    tiff += struct.pack("<H", 2) + entry(0x920A, 5, 1, focal_at) + struct.pack("<HHIHH", 0xA405, 3, 1, focal_35mm, 0)
+    tiff += struct.pack("<I", 0) + struct.pack("<II", int(round(focal_mm * 100)), 100)
+    payload = b"Exif\0\0" + tiff
+    return b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload
+
+
+def write_jpeg_with_exif(src: Path, dst: Path, focal_px: float, make: str = "gsgs", model: str = "bench") -> None:
+    """`src` re-encoded as JPEG (quality 95) with EXIF giving the focal length `focal_px` as a
+    whole-millimetre 35 mm equivalent (diagonal convention, as a camera writes it)."""
+    import cv2
+
+    img = cv2.imread(str(src), cv2.IMREAD_COLOR)
+    if img is None:
+        raise GsgsError(f"{src}: cannot be read as an image")
+    h, w = img.shape[:2]
+    f35 = int(round(focal_px * 43.2666 / float(np.hypot(w, h))))
+    ok, jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    if not ok:
+        raise GsgsError(f"{src}: JPEG encoding failed")
+    data = jpeg.tobytes()
+    Path(dst).write_bytes(data[:2] + exif_app1(make, model, float(f35), f35) + data[2:])
+
+
 # ---------------------------------------------------------------------------------------
 # Pose benchmark
 # ---------------------------------------------------------------------------------------
@@ -120,8 +161,9 @@ def _given_cameras(scene_dir: Path) -> tuple[list[Camera], list[Path]]:
     return [v.camera for v in scene.views], [v.image_path for v in scene.views]
 
 
-def run_case(scene_dir: Path, indices: list[int], work: Path, repeat: bool = True) -> dict:
-    """One subset through run_sfm; pose errors against the given cameras."""
+def run_case(scene_dir: Path, indices: list[int], work: Path, repeat: bool = True, exif_focal: bool = False) -> dict:
+    """One subset through run_sfm; pose errors against the given cameras. `exif_focal`: the
+    photos go in as JPEGs whose EXIF states the given focal length (as a camera's would)."""
     from gsgs_engine.sfm import SfmFailed, run_sfm
 
     cams, paths = _given_cameras(scene_dir)
@@ -130,8 +172,11 @@ def run_case(scene_dir: Path, indices: list[int], work: Path, repeat: bool = Tru
         shutil.rmtree(photos)
     photos.mkdir(parents=True)
     for i in indices:
-        shutil.copy(paths[i], photos / paths[i].name)
-    row = {"scene": scene_dir.name, "indices": indices, "photos": len(indices)}
+        if exif_focal:
+            write_jpeg_with_exif(paths[i], photos / f"{paths[i].stem}.jpg", cams[i].fx)
+        else:
+            shutil.copy(paths[i], photos / paths[i].name)
+    row = {"scene": scene_dir.name, "indices": indices, "photos": len(indices), "exif_focal": exif_focal}
     runs = []
     for k in range(2 if repeat else 1):
         started = time.time()
@@ -147,7 +192,7 @@ def run_case(scene_dir: Path, indices: list[int], work: Path, repeat: bool = Tru
                 "strategy": report["strategy"], "attempts": report["attempts"],
                 "unregistered": {v.name: v.reason for v in views if not v.registered}})
     if result is not None and len(result.cameras) >= 2:
-        by_name = {p.name: c for p, c in zip(paths, cams)}
+        by_name = {p.stem + (".jpg" if exif_focal else p.suffix): c for p, c in zip(paths, cams)}
         est = list(result.cameras)
         row.update(pose_errors(est, [by_name[c.name] for c in est]))
         row["focal_ratio"] = float(np.median([c.fx / by_name[c.name].fx for c in est]))
@@ -166,7 +211,7 @@ def _same_cameras(a, b) -> bool:
 
 
 def run_benchmark(data: Path, scenes=SCENES, sizes=SIZES, layouts=LAYOUTS, seeds=SEEDS, repeat: bool = True,
-                  log=print) -> list[dict]:
+                  exif_focal: bool = False, log=print) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory(prefix="gsgs_bench_sfm_") as tmp:
         for scene in scenes:
@@ -178,7 +223,7 @@ def run_benchmark(data: Path, scenes=SCENES, sizes=SIZES, layouts=LAYOUTS, seeds
                 for layout in layouts:
                     for seed in seeds:
                         indices = subset(count, size, layout, seed)
-                        row = run_case(scene_dir, indices, Path(tmp) / "case", repeat=repeat)
+                        row = run_case(scene_dir, indices, Path(tmp) / "case", repeat=repeat, exif_focal=exif_focal)
                         row.update({"layout": layout, "seed": seed})
                         rows.append(row)
                         log(_row_line(row))
@@ -344,6 +389,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
     parser.add_argument("--layouts", nargs="+", default=list(LAYOUTS), choices=LAYOUTS)
     parser.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
+    parser.add_argument("--exif-focal", action="store_true",
+                        help="feed JPEGs whose EXIF states the given focal length (as a camera writes it)")
     parser.add_argument("--no-repeat", action="store_true", help="skip the second run of each subset")
     parser.add_argument("--train-iters", type=int, default=0,
                         help="also train on flower's 3 views with given vs estimated poses for N iterations")
@@ -370,7 +417,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"PSNR gap (estimated - given poses): {training['psnr_gap']:+.2f} dB; wrote {path}")
         return 0
     rows = run_benchmark(args.data, args.scenes, args.sizes, args.layouts, args.seeds, repeat=not args.no_repeat,
-                         log=lambda m: print(m, flush=True))
+                         exif_focal=args.exif_focal, log=lambda m: print(m, flush=True))
     summary = summarise(rows)
     training = json.loads(args.training_json.read_text()) if args.training_json else None
     if args.train_iters > 0:
