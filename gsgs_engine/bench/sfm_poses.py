@@ -266,7 +266,7 @@ def _first_attempt(r: dict) -> int:
 
 
 def markdown(rows: list[dict], summary: dict, header: str, training: dict | None) -> str:
-    lines = [f"# Camera poses from sparse photos: `gsgs sfm` against known poses", "", header, "",
+    lines = ["# Camera poses from sparse photos: `gsgs sfm` against known poses", "", header, "",
              "Per subset: photos registered; rotation error and camera-centre error (as % of the subset's rig "
              "extent: the largest distance between two of its true camera centres) after a similarity alignment "
              "to poses_bounds.npy (rotation from the cameras' orientations, scale and translation from the centres "
@@ -398,6 +398,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --train-iters: only the training comparison, written to STEM_training.json")
     parser.add_argument("--training-json", type=Path, default=None,
                         help="include a training comparison measured earlier (a STEM_training.json)")
+    parser.add_argument("--render-only", action="store_true",
+                        help="rewrite STEM.md from STEM.json (with --training-json: adding that comparison)")
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "sfm_poses",
                         help="output stem: writes STEM.md and STEM.json (default docs/sfm_poses)")
     parser.add_argument("--note", default="", help="text for the table's header (machine, what else ran)")
@@ -420,14 +422,21 @@ def run(args: argparse.Namespace) -> int:
                          exif_focal=args.exif_focal, log=lambda m: print(m, flush=True))
     summary = summarise(rows)
     training = json.loads(args.training_json.read_text()) if args.training_json else None
+    if args.render_only:
+        saved = json.loads(Path(f"{args.out}.json").read_text())
+        saved["training"] = training or saved.get("training")
+        Path(f"{args.out}.json").write_text(json.dumps(saved, indent=1))
+        Path(f"{args.out}.md").write_text(markdown(saved["rows"], saved["summary"], saved["header"], saved["training"]))
+        print(f"wrote {args.out}.md")
+        return 0
     if args.train_iters > 0:
         with tempfile.TemporaryDirectory(prefix="gsgs_bench_sfm_train_") as tmp:
             training = train_gap(args.data, Path(tmp), args.train_iters, log=lambda m: print(m, flush=True))
     header = (f"Measured {time.strftime('%Y-%m-%d')} with `python -m gsgs_engine.bench.sfm_poses` "
               f"({time.time() - started:.0f} s in all). {args.note}").strip()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    Path(f"{args.out}.json").write_text(json.dumps({"summary": summary, "rows": rows, "training": training},
-                                                   indent=1))
+    Path(f"{args.out}.json").write_text(json.dumps({"summary": summary, "header": header, "rows": rows,
+                                                    "training": training}, indent=1))
     Path(f"{args.out}.md").write_text(markdown(rows, summary, header, training))
     print(markdown([], summary, header, training).split("**Summary:**", 1)[1].strip())
     print(f"wrote {args.out}.md and {args.out}.json")
