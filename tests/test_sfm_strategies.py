@@ -123,6 +123,7 @@ def _llff_photos(tmp_path: Path, scene: str, indices: list[int]) -> Path:
     return photos
 
 
+@pytest.mark.slow
 def test_adjacent_flower_frames_register_and_the_report_names_the_strategy(tmp_path):
     # images_8 files 1-3: a small hand-held baseline; incremental mapping at 4 degrees registered 0/3.
     photos = _llff_photos(tmp_path, "llff_flower", [1, 2, 3])
@@ -151,6 +152,7 @@ def test_adjacent_flower_frames_register_and_the_report_names_the_strategy(tmp_p
     assert err["median_rotation_deg"] < 1.0 and err["median_centre_pct"] < 5.0, err
 
 
+@pytest.mark.slow
 def test_same_photos_give_the_same_cameras(tmp_path):
     # Before the image ids were fixed in name order, threaded feature extraction numbered
     # these photos differently run to run and the cameras differed.
@@ -167,6 +169,7 @@ def test_same_photos_give_the_same_cameras(tmp_path):
     np.testing.assert_array_equal(first.points, second.points)
 
 
+@pytest.mark.slow
 def test_a_photo_that_matches_nothing_is_named_for_a_retake(tmp_path):
     photos = _llff_photos(tmp_path, "llff_horns", [1, 2, 3])
     flower = sorted((shared_scene("llff_flower") / "images_8").iterdir())[5]
@@ -182,6 +185,7 @@ def test_a_photo_that_matches_nothing_is_named_for_a_retake(tmp_path):
     assert len(stragglers) == 1 and stragglers[0]["registered"] == 3
 
 
+@pytest.mark.slow
 def test_photos_whose_exif_names_different_cameras_get_their_own_cameras(tmp_path):
     import cv2
 
@@ -215,6 +219,7 @@ def test_photos_whose_exif_names_different_cameras_get_their_own_cameras(tmp_pat
     assert result.num_registered == 3
 
 
+@pytest.mark.slow
 def test_exif_focal_length_pins_down_a_close_triplet(tmp_path):
     # Flower frames 15-17 without EXIF: every strategy refines the focal length to a wrong value
     # (2 degrees and 14% of the rig off). With the focal length a camera would write, kept fixed:
