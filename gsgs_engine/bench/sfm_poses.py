@@ -270,8 +270,8 @@ def markdown(rows: list[dict], summary: dict, header: str, training: dict | None
              "Per subset: photos registered; rotation error and camera-centre error (as % of the subset's rig "
              "extent: the largest distance between two of its true camera centres) after a similarity alignment "
              "to poses_bounds.npy (rotation from the cameras' orientations, scale and translation from the centres "
-             "by least squares); the strategy kept; `4deg alone`: photos the previous default (incremental mapping "
-             "with a 4 degree initial pair) registered; seconds of one run; `rerun`: a second run gave bit-identical "
+             "by least squares); the strategy kept; `4deg alone`: photos registered by this run's first attempt, incremental "
+             "mapping with a 4 degree initial pair (the previous default's settings, now with seeded RANSAC); seconds of one run; `rerun`: a second run gave bit-identical "
              "cameras.", "",
              "| scene | photos | layout | seed | frames | registered | 4deg alone | strategy | rot median (deg) | "
              "rot max (deg) | centre median (%) | centre max (%) | focal est/given | seconds | rerun |",
