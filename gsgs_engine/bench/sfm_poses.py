@@ -407,6 +407,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     started = time.time()
+    if args.render_only:
+        saved = json.loads(Path(f"{args.out}.json").read_text())
+        if args.training_json:
+            saved["training"] = json.loads(args.training_json.read_text())
+        Path(f"{args.out}.json").write_text(json.dumps(saved, indent=1))
+        Path(f"{args.out}.md").write_text(markdown(saved["rows"], saved["summary"], saved["header"], saved["training"]))
+        print(f"wrote {args.out}.md")
+        return 0
     if args.train_only:
         if args.train_iters < 1:
             raise GsgsError("--train-only needs --train-iters N (N >= 1)")
@@ -422,13 +430,6 @@ def run(args: argparse.Namespace) -> int:
                          exif_focal=args.exif_focal, log=lambda m: print(m, flush=True))
     summary = summarise(rows)
     training = json.loads(args.training_json.read_text()) if args.training_json else None
-    if args.render_only:
-        saved = json.loads(Path(f"{args.out}.json").read_text())
-        saved["training"] = training or saved.get("training")
-        Path(f"{args.out}.json").write_text(json.dumps(saved, indent=1))
-        Path(f"{args.out}.md").write_text(markdown(saved["rows"], saved["summary"], saved["header"], saved["training"]))
-        print(f"wrote {args.out}.md")
-        return 0
     if args.train_iters > 0:
         with tempfile.TemporaryDirectory(prefix="gsgs_bench_sfm_train_") as tmp:
             training = train_gap(args.data, Path(tmp), args.train_iters, log=lambda m: print(m, flush=True))
