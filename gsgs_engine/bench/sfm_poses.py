@@ -313,10 +313,11 @@ def markdown(rows: list[dict], summary: dict, header: str, training: dict | None
 # ---------------------------------------------------------------------------------------
 # Training on estimated poses
 # ---------------------------------------------------------------------------------------
-def train_gap(data: Path, out: Path, iters: int, train_views: int = 3, log=print) -> dict:
+def train_gap(data: Path, out: Path, iters: int, train_views: int = 3, exif_focal: bool = False, log=print) -> dict:
     """Train on llff_flower's `train_views` protocol views with the given poses and with the
     poses SfM estimates from those photos alone; same settings (plain 3DGS, no prior); test
-    PSNR at the given test poses (mapped into the estimated frame)."""
+    PSNR at the given test poses (mapped into the estimated frame). `exif_focal`: SfM gets the
+    photos as JPEGs whose EXIF states the given focal length."""
     from gsgs_engine.io import load_scene
     from gsgs_engine.io.images import make_view
     from gsgs_engine.io.scene import Scene
@@ -329,7 +330,10 @@ def train_gap(data: Path, out: Path, iters: int, train_views: int = 3, log=print
         shutil.rmtree(photos)
     photos.mkdir(parents=True)
     for v in given.train:
-        shutil.copy(v.image_path, photos / v.image_path.name)
+        if exif_focal:
+            write_jpeg_with_exif(v.image_path, photos / f"{v.image_path.stem}.jpg", v.camera.fx)
+        else:
+            shutil.copy(v.image_path, photos / v.image_path.name)
     sfm = run_sfm(photos, out / "sfm")
     if sfm.num_registered != len(given.train):
         raise GsgsError(f"SfM registered {sfm.summary()} of the training photos; the gap needs all of them")
@@ -367,11 +371,13 @@ def train_gap(data: Path, out: Path, iters: int, train_views: int = 3, log=print
     desc = (f"{iters} training iterations (reduced from the accuracy tables' 1000 to fit the time), plain 3DGS "
             f"(no prior), SfM-point init triangulated from the training views in both runs, the "
             f"{len(given.train)} protocol views ({', '.join(v.name for v in given.train)}), test views every 8th "
-            f"image ({len(test)}), images_8 (504x378). SfM on the 3 photos alone: {sfm.strategy}, pose errors vs "
+            f"image ({len(test)}), images_8 (504x378). SfM on the 3 photos alone"
+            + (" (JPEG q95 copies whose EXIF states the given focal length, which SfM then keeps)" if exif_focal else "")
+            + f": {sfm.strategy}, pose errors vs "
             f"given median {errors['median_rotation_deg']:.2f} deg / {errors['median_centre_pct']:.2f} % of the rig; "
             "the estimated model is evaluated at the given test poses mapped into its frame by the similarity "
             "fitted on the 3 training cameras, with the given intrinsics.")
-    return {"description": desc, "iters": iters, "sfm_strategy": sfm.strategy, "train_pose_errors": errors,
+    return {"description": desc, "iters": iters, "exif_focal": exif_focal, "sfm_strategy": sfm.strategy, "train_pose_errors": errors,
             "focal_ratio": f_est * given.test[0].camera.width / est_train[0].camera.width / given.test[0].camera.fx,
             "given": {k: results["given"][k] for k in keep},
             "estimated": {k: results["estimated"][k] for k in keep + ("psnr_sfm_focal", "ssim_sfm_focal")},
@@ -419,7 +425,8 @@ def run(args: argparse.Namespace) -> int:
         if args.train_iters < 1:
             raise GsgsError("--train-only needs --train-iters N (N >= 1)")
         with tempfile.TemporaryDirectory(prefix="gsgs_bench_sfm_train_") as tmp:
-            training = train_gap(args.data, Path(tmp), args.train_iters, log=lambda m: print(m, flush=True))
+            training = train_gap(args.data, Path(tmp), args.train_iters, exif_focal=args.exif_focal,
+                                 log=lambda m: print(m, flush=True))
         training["seconds"] = round(time.time() - started, 1)
         path = Path(f"{args.out}_training.json")
         path.parent.mkdir(parents=True, exist_ok=True)
