@@ -26,6 +26,8 @@ import numpy as np
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
+from gsgs_engine import sfm_strategies
+from gsgs_engine.sfm_strategies import STRATEGIES
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +50,8 @@ ProgressFn = Callable[[str, int, int, str], None]  # (stage, step, total, messag
 # ---------------------------------------------------------------------------------------
 @dataclass
 class ViewReport:
-    """What SfM made of one input photo; `reason` says why it is missing from the model."""
+    """What SfM made of one input photo; `reason` says which strategy registered it, or why it
+    is missing from the model and what to retake."""
 
     name: str
     registered: bool
@@ -56,6 +59,7 @@ class ViewReport:
     num_features: int = 0
     num_matched_views: int = 0  # other photos it shares a verified two-view geometry with
     max_inliers: int = 0  # largest verified match count with any other photo
+    num_points: int = 0  # 3D points of the chosen model it observes
 
 
 @dataclass
@@ -72,6 +76,9 @@ class SfmResult:
     mean_reprojection_error: float
     report_path: Path
     notes: list[str] = field(default_factory=list)  # adjustments made to the request, for the user
+    strategy: str = ""  # the mapping strategy whose model was kept (gsgs_engine.sfm_strategies)
+    strategy_reason: str = ""  # why it was kept
+    attempts: list[dict] = field(default_factory=list)  # every strategy tried: registered, points, error, s
 
     @property
     def num_registered(self) -> int:
@@ -87,6 +94,9 @@ class SfmResult:
 
     def summary(self) -> str:
         return f"registered {self.num_registered}/{self.num_views} views"
+
+    def strategy_line(self) -> str:
+        return f"strategy: {sfm_strategies.describe(self.strategy)}: {self.strategy_reason}"
 
 
 class SfmFailed(GsgsError):
@@ -117,13 +127,16 @@ class Triangulation:
 # ---------------------------------------------------------------------------------------
 def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_model: str = "SIMPLE_RADIAL",
             single_camera: bool = True, max_image_size: int = 1600, progress: ProgressFn | None = None,
-            should_cancel: Callable[[], bool] | None = None, num_threads: int = -1) -> SfmResult:
+            should_cancel: Callable[[], bool] | None = None, num_threads: int = -1,
+            strategies: Sequence[str] = STRATEGIES) -> SfmResult:
     """Recover cameras and sparse points from unposed photos with pycolmap.
 
     Writes a COLMAP folder: out_dir/images (undistorted), out_dir/sparse/0/*.bin (PINHOLE),
     out_dir/distorted/ (database and raw models) and out_dir/sfm_report.json. Views that do
     not register are reported with a reason; raises SfmFailed when no model at all is built.
     `max_image_size` caps the longest side used for features and for the undistorted images.
+    `strategies`: which mapping strategies may run (gsgs_engine.sfm_strategies; all by default);
+    the report names the one kept and every attempt. Same photos and settings, same cameras.
     """
     photo_dir = Path(photo_dir)
     out_dir = Path(out_dir)
@@ -131,6 +144,9 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
         raise GsgsError(f"camera model {camera_model!r} is not supported; use one of {', '.join(CAMERA_MODELS)}")
     if int(max_image_size) < 64:
         raise GsgsError(f"max_image_size {max_image_size} is too small; use at least 64 (1600 is a good default)")
+    unknown = sorted(set(strategies) - set(STRATEGIES))
+    if unknown or not strategies:
+        raise GsgsError(f"SfM strategies {unknown or 'none'}: choose one or more of {', '.join(STRATEGIES)}")
     names, skipped, sizes = list_photos(photo_dir)
     if len(names) < 2:
         raise GsgsError(f"{photo_dir}: found {len(names)} image(s); structure from motion needs at least 2 "
@@ -144,13 +160,17 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
         log.info("%s: %s", photo_dir, notes[-1])
     params = {"photo_dir": str(photo_dir.resolve()), "names": names, "out_dir": str(out_dir.resolve()),
               "camera_model": camera_model, "single_camera": bool(single_camera),
-              "max_image_size": int(max_image_size), "num_threads": int(num_threads)}
+              "max_image_size": int(max_image_size), "num_threads": int(num_threads),
+              "strategies": [s for s in STRATEGIES if s in strategies]}
     log_path = out_dir / "colmap.log"
     started = time.time()
     raw = _run_in_child("sfm", params, log_path, SFM_STAGES, progress, should_cancel)
     views = [ViewReport(**v) for v in raw["views"]]
+    notes += raw["notes"]
     report = {"photo_dir": str(photo_dir), "registered": sum(v.registered for v in views), "total": len(views),
-              "camera_model": camera_model, "single_camera": bool(single_camera),
+              "strategy": raw["strategy"], "strategy_reason": raw["strategy_reason"], "attempts": raw["attempts"],
+              "retake": [v.name for v in views if not v.registered],
+              "camera_model": camera_model, "single_camera": bool(raw["single_camera"]),
               "max_image_size": int(max_image_size), "models": raw["model_sizes"],
               "num_points": int(len(raw.get("points", ()))),
               "mean_reprojection_error": raw.get("mean_reprojection_error"),
@@ -159,8 +179,9 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
     report_path = out_dir / "sfm_report.json"
     report_path.write_text(json.dumps(report, indent=2))
     if not raw["model_sizes"]:
+        tried = ", ".join(a["strategy"] for a in raw["attempts"]) or "none"
         raise SfmFailed(f"{photo_dir}: no reconstruction could be built from {len(names)} photos "
-                        f"({_failure_digest(views)}); take more photos with more overlap (60-80% between "
+                        f"({_failure_digest(views)}; strategies tried: {tried}); take more photos with more overlap (60-80% between "
                         "neighbours), move the camera between shots rather than only rotating it, "
                         "and avoid blank or blurry frames", views, report_path)
     cameras, image_paths = [], []
@@ -175,7 +196,8 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
                      point_colors=np.asarray(raw["colors"], dtype=np.float32).reshape(-1, 3),
                      views=views, skipped_files=skipped,
                      mean_reprojection_error=float(raw["mean_reprojection_error"]), report_path=report_path,
-                     notes=notes)
+                     notes=notes, strategy=raw["strategy"], strategy_reason=raw["strategy_reason"],
+                     attempts=raw["attempts"])
 
 
 def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None,
@@ -277,7 +299,7 @@ def run_sfm_job(job) -> SfmResult:
              stage="done", registered=result.num_registered, total_views=result.num_views)
     if result.num_registered < 2:
         raise GsgsError(f"{photos}: {result.summary()}; add photos that overlap more")
-    job.set_status("ok", result.summary() + (f"; failed: {failed}" if failed else ""))
+    job.set_status("ok", f"{result.summary()} ({result.strategy})" + (f"; retake: {failed}" if failed else ""))
     return result
 
 
@@ -508,6 +530,21 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
     db_path = distorted / "database.db"
     small = len(names) <= SMALL_SET
     device = pycolmap.Device.cpu if not pycolmap.has_cuda else pycolmap.Device.auto
+    notes = []
+    single_camera = p["single_camera"]
+    fix_focal = False
+    if single_camera:
+        cameras_seen, focals = _exif_cameras(pycolmap, photo_dir, names)
+        if len(cameras_seen) > 1:
+            single_camera = False
+            notes.append(f"the photos' EXIF names {len(cameras_seen)} different cameras or focal lengths "
+                         f"({'; '.join(sorted(cameras_seen))}), so each photo got its own camera")
+        elif small and len(focals) == len(names):
+            # A few photos close together barely constrain the focal length: refined, it drifts
+            # (flower frames 15-17: 2 degrees and 15% of the rig off); the camera's own is better.
+            fix_focal = True
+            notes.append(f"focal length {focals[0]:.0f} px from the photos' EXIF kept fixed "
+                         f"({len(names)} photos barely constrain it)")
 
     emit("features", f"extracting SIFT features from {len(names)} photos (longest side {p['max_image_size']} px)")
     reader = pycolmap.ImageReaderOptions()
@@ -515,13 +552,18 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = p["max_image_size"]
     extraction.num_threads = p["num_threads"]
-    mode = pycolmap.CameraMode.SINGLE if p["single_camera"] else pycolmap.CameraMode.PER_IMAGE
+    mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+    # Image ids in name order: threaded extraction would number photos as they finish, and the
+    # mappers visit photos by id, so the same photos could give different cameras run to run.
+    pycolmap.Database.open(db_path).close()
+    pycolmap.import_images(db_path, photo_dir, camera_mode=mode, image_names=names, options=reader)
     pycolmap.extract_features(db_path, photo_dir, image_names=names, camera_mode=mode, reader_options=reader,
                               extraction_options=extraction, device=device)
 
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = p["num_threads"]
     verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = sfm_strategies.SEED  # each pair's RANSAC seeded: any thread order
     if small:
         verification.min_num_inliers = 10
     if len(names) <= EXHAUSTIVE_LIMIT:
@@ -533,27 +575,24 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
         pycolmap.match_sequential(db_path, matching_options=matching, verification_options=verification,
                                   device=device)
 
-    emit("mapping", "incremental mapping")
-    options = _small_set_mapper_options(pycolmap, small, verification.min_num_inliers)
-    options.num_threads = p["num_threads"]
-    options.random_seed = 0
-    options.mapper.random_seed = 0
-    options.triangulation.random_seed = 0
-    models_dir = distorted / "sparse"
-    models_dir.mkdir(parents=True, exist_ok=True)
-    models = pycolmap.incremental_mapping(db_path, photo_dir, models_dir, options=options)
-    ranked = sorted(models.items(), key=lambda kv: (kv[1].num_reg_images(), kv[1].num_points3D()), reverse=True)
-    model_sizes = [int(rec.num_reg_images()) for _, rec in ranked]
-    views = _view_reports(pycolmap, db_path, names, [rec for _, rec in ranked], verification.min_num_inliers)
-    if not ranked:
-        return {"model_sizes": [], "views": views}
-    best_key, best = ranked[0]
+    best, attempts = sfm_strategies.solve(pycolmap, db_path, photo_dir, distorted / "sparse", len(names), small,
+                                          verification.min_num_inliers, emit, p["strategies"], fix_focal)
+    recs = {a.strategy: pycolmap.Reconstruction(a.model_dir) for a in attempts if a.model_dir}
+    views = _view_reports(pycolmap, db_path, names, best, attempts, recs, verification.min_num_inliers)
+    solve_info = {"single_camera": single_camera, "notes": notes,
+                  "attempts": [a.to_dict() for a in attempts],
+                  "strategy": best.strategy if best else "",
+                  "strategy_reason": sfm_strategies.why_best(best, attempts, len(names)) if best else ""}
+    if best is None:
+        return {"model_sizes": [], "views": views, **solve_info}
+    model_sizes = [best.registered]
 
-    emit("undistortion", f"undistorting {best.num_reg_images()} registered photos to a pinhole camera")
+    emit("undistortion", f"undistorting {best.registered} registered photos to a pinhole camera")
     undistort = pycolmap.UndistortCameraOptions()
     undistort.max_image_size = p["max_image_size"]
-    registered_names = [best.image(i).name for i in best.reg_image_ids()]
-    pycolmap.undistort_images(out_dir, models_dir / str(best_key), photo_dir, image_names=registered_names,
+    best_rec = recs[best.strategy]
+    registered_names = [best_rec.image(i).name for i in best_rec.reg_image_ids()]
+    pycolmap.undistort_images(out_dir, best.model_dir, photo_dir, image_names=registered_names,
                               output_type="COLMAP", undistort_options=undistort)
     # undistort_images writes sparse/*.bin; the COLMAP layout loaders expect is sparse/0/.
     sparse0 = out_dir / "sparse" / "0"
@@ -580,29 +619,39 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
     points = np.array([rec.point3D(i).xyz for i in ids], dtype=np.float64).reshape(-1, 3)
     colors = np.array([rec.point3D(i).color for i in ids], dtype=np.float64).reshape(-1, 3) / 255.0
     return {"model_sizes": model_sizes, "views": views, "cameras": cameras, "points": points, "colors": colors,
-            "mean_reprojection_error": float(rec.compute_mean_reprojection_error())}
+            "mean_reprojection_error": float(rec.compute_mean_reprojection_error()), **solve_info}
 
 
-def _small_set_mapper_options(pycolmap, small: bool, min_matches: int):
-    """COLMAP's defaults assume dozens of photos; with 2-10 the initial pair must be allowed
-    fewer inliers and a smaller baseline, and two-view tracks are most of the structure."""
-    options = pycolmap.IncrementalPipelineOptions()
-    if small:
-        options.min_num_matches = min_matches
-        options.mapper.init_min_num_inliers = 50
-        options.mapper.init_min_tri_angle = 4.0
-        options.mapper.abs_pose_min_num_inliers = 15
-        options.mapper.abs_pose_min_inlier_ratio = 0.15
-        options.triangulation.ignore_two_view_tracks = False
-        options.min_model_size = 2
-    return options
+def _exif_cameras(pycolmap, photo_dir: Path, names: list[str]) -> tuple[set[str], list[float]]:
+    """Distinct 'camera model, focal length' EXIF identities among the photos that carry EXIF,
+    and the focal lengths (px) of the photos whose EXIF gives one."""
+    seen, focals = set(), []
+    for name in names:
+        bitmap = pycolmap.Bitmap.read(str(photo_dir / name), False)
+        model = bitmap.exif_camera_model() if bitmap is not None else None
+        focal = bitmap.exif_focal_length() if bitmap is not None else None
+        if focal:
+            focals.append(float(focal))
+        if model or focal:
+            seen.add(f"{model or 'unknown camera'}, focal {focal:.4g}" if focal else f"{model}, focal unknown")
+    return seen, focals
 
 
-def _view_reports(pycolmap, db_path: Path, names: list[str], models: list, min_inliers: int) -> list[dict]:
-    registered_in = {}  # name -> index of the (size-ranked) model holding it
-    for k, rec in enumerate(models):
+def _view_reports(pycolmap, db_path: Path, names: list[str], best, attempts: list, recs: dict,
+                  min_inliers: int) -> list[dict]:
+    """Why each photo is, or is not, in the chosen model (`best`, an sfm_strategies.Attempt)."""
+    chosen = recs.get(best.strategy) if best is not None else None
+    seen_in = {}  # name -> 3D points it observes in the chosen model
+    if chosen is not None:
+        for i in chosen.reg_image_ids():
+            seen_in[chosen.image(i).name] = int(chosen.image(i).num_points3D)
+    elsewhere: dict[str, list[str]] = {}  # name -> strategies whose (worse) model holds it
+    for strategy, rec in recs.items():
+        if best is not None and strategy == best.strategy:
+            continue
         for i in rec.reg_image_ids():
-            registered_in.setdefault(rec.image(i).name, k)
+            elsewhere.setdefault(rec.image(i).name, []).append(f"{strategy} ({rec.num_reg_images()} photos)")
+    tried = ", ".join(a.strategy for a in attempts) or "none"
     with pycolmap.Database.open(db_path) as db:
         images = {im.name: im for im in db.read_all_images()}
         id_to_name = {im.image_id: name for name, im in images.items()}
@@ -620,24 +669,27 @@ def _view_reports(pycolmap, db_path: Path, names: list[str], models: list, min_i
     for name in names:
         nf = features.get(name, 0)
         matched = links.get(name, [])
-        r = {"name": name, "registered": registered_in.get(name) == 0 and bool(models), "reason": "",
-             "num_features": nf, "num_matched_views": len(matched), "max_inliers": max(matched, default=0)}
+        r = {"name": name, "registered": name in seen_in, "reason": "", "num_features": nf,
+             "num_matched_views": len(matched), "max_inliers": max(matched, default=0),
+             "num_points": seen_in.get(name, 0)}
         if r["registered"]:
-            pass
+            r["reason"] = (f"registered by {best.strategy}: sees {r['num_points']} of the model's "
+                           f"{best.num_points} points")
         elif name not in images:
             r["reason"] = "not read by COLMAP: it skipped this file (reason in colmap.log); convert it to JPEG"
         elif nf == 0:
-            r["reason"] = "no features: the image is blank or has no texture"
+            r["reason"] = "no features: the image is blank or has no texture; retake it"
         elif not matched:
             r["reason"] = (f"no matches: none of its {nf} features match another photo well enough "
-                           "(too little overlap, or too different in viewpoint or lighting)")
-        elif name in registered_in:
-            size = models[registered_in[name]].num_reg_images()
-            r["reason"] = (f"not registered: it reconstructs only in a separate {size}-view model "
-                           "not connected to the main one")
+                           "(too little overlap, or too different in viewpoint or lighting); retake it "
+                           "closer to its neighbours' viewpoints")
+        elif name in elsewhere:
+            r["reason"] = (f"not registered: only {', '.join(elsewhere[name])} placed it, in a model that "
+                           "left out more photos; retake it, or add a photo between it and the others")
         else:
             r["reason"] = (f"not registered: matched {len(matched)} other photo(s) (best {r['max_inliers']} "
-                           "inliers) but its pose could not be estimated (too few matches or too small a baseline)")
+                           f"inliers) but no strategy ({tried}) could estimate its pose (too few matches or "
+                           "too small a baseline); retake it with more overlap and a sideways step")
         reports.append(r)
     return reports
 

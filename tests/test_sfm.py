@@ -123,6 +123,8 @@ def test_identical_blank_images_give_a_report_not_a_crash(tmp_path, capsys):
     assert "registered 0/2 views" in lines
     assert any(line.strip().startswith("blank_0.png: no features") for line in lines)
     assert "no reconstruction could be built" in captured.err and "more overlap" in captured.err
+    assert "strategies tried: incremental 4deg, incremental 2deg, incremental 1deg, incremental 0.5deg, global" \
+        in captured.err
     report = json.loads((out / "sfm_report.json").read_text())
     assert report["registered"] == 0 and report["total"] == 2 and report["models"] == []
     assert [v["reason"].split(":")[0] for v in report["views"]] == ["no features", "no features"]
@@ -196,9 +198,15 @@ def test_sfm_job_writes_cameras_points_and_progress(tmp_path):
         _, z = cam.project(pts)
         assert np.mean(z > 0) > 0.95
     events = [json.loads(line) for line in job.progress_path.read_text().splitlines()]
-    assert [e["stage"] for e in events] == ["features", "matching", "mapping", "undistortion", "export", "done"]
+    stages = [e["stage"] for e in events]
+    assert [s for i, s in enumerate(stages) if i == 0 or s != stages[i - 1]] == [
+        "features", "matching", "mapping", "undistortion", "export", "done"]
+    mapping = [e["message"] for e in events if e["stage"] == "mapping"]  # one event per strategy tried
+    assert mapping[0].startswith("incremental") and any(m.startswith("global") for m in mapping)
     assert all(e["phase"] == "sfm" for e in events) and events[-1]["registered"] == 3
-    assert job.status()["state"] == "ok" and "registered 3/3 views" in job.status()["message"]
+    # The add-on's Info line shows this message: the count and the strategy that won.
+    assert job.status()["state"] == "ok"
+    assert job.status()["message"] == f"registered 3/3 views ({result.strategy})" and result.strategy
 
 
 @pytest.mark.slow

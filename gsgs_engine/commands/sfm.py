@@ -42,8 +42,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"gsgs: {exc}", file=sys.stderr)
         return 1
     print(result.summary())
+    print(f"  {result.strategy_line()}")
     for v in result.failed:
         print(f"  {v.name}: {v.reason}")
+    if result.failed:
+        print(f"  retake: {', '.join(v.name for v in result.failed)}")
     for note in result.notes:
         print(f"  note: {note}")
     if result.skipped_files:
