@@ -25,6 +25,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "accuracy": ("gsgs_engine.bench.accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
     "sparse": ("gsgs_engine.bench.sparse", "the sparse-view protocols (LLFF 3 views, NeRF-synthetic 8 views): "
                "variants x scenes x seeds, mean +- std"),
+    "sfm": ("gsgs_engine.bench.sfm_poses", "camera poses from sparse photo subsets against known poses"),
     "dynamic": ("gsgs_engine.bench.dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
 }
 
