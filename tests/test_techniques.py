@@ -199,6 +199,26 @@ def test_switch_validates_names_and_options():
         make_techniques(parse_techniques("opacity_decay:factor=1.5"))
 
 
+def test_gsgs_train_records_the_techniques(tmp_path, capsys):
+    import json
+
+    from gsgs_engine.cli import main
+    from test_train_cli import write_tiny_blender_scene
+
+    scene = write_tiny_blender_scene(tmp_path / "scene")
+    out = tmp_path / "run"
+    assert main(["train", str(scene), "--out", str(out), "--iters", "8", "--sh-degree", "0", "--init-points", "200",
+                 "--techniques", "opacity_decay:factor=0.99,dropout"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["plan"]["techniques"] == [{"name": "dropout", "options": {}},
+                                             {"name": "opacity_decay", "options": {"factor": 0.99}}]
+    assert set(metrics["techniques"]) == {"dropout", "opacity_decay"}
+    assert metrics["techniques"]["opacity_decay"]["factor"] == 0.99
+    assert metrics["plan"]["schedule"]["densify_until"] == 8  # the decay's schedule is what ran
+    assert main(["train", str(scene), "--out", str(tmp_path / "bad"), "--techniques", "dropuot"]) == 2
+    assert "unknown technique 'dropuot'" in capsys.readouterr().err
+
+
 def test_job_settings_and_cli_carry_the_techniques():
     from gsgs_engine.priors.config import prior_config_from_settings
     from gsgs_engine.reconstruct import config_from_settings
