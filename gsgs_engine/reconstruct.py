@@ -186,7 +186,7 @@ def run_prior_training(scene, train_config, prior_config: PriorConfig, out_dir, 
     loop_holder: dict = {}
     from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
 
-    techniques = parse_techniques(prior_config.techniques, "techniques")  # bad names stop before training
+    techniques = parse_techniques(prior_config.techniques, "--techniques / job setting \"techniques\"")  # bad names stop here
     make_techniques(techniques)  # so do bad options
 
     def setup(trainer) -> None:
