@@ -133,7 +133,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
     settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
-               "resolution_scale", "background", "preset", "effects"}
+               "resolution_scale", "background", "preset", "effects", "techniques"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
@@ -200,8 +200,14 @@ def run_prior_training(scene, train_config, prior_config: PriorConfig, out_dir, 
     prior_plan = resolve_prior_plan(prior_config, len(scene.train))
     prior_plan["authored_poses"] = list(authored_poses or [])
     loop_holder: dict = {}
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    techniques = parse_techniques(prior_config.techniques, "--techniques / job setting \"techniques\"")  # bad names stop here
+    make_techniques(techniques)  # so do bad options
 
     def setup(trainer) -> None:
+        for technique in make_techniques(techniques):
+            trainer.add_technique(technique)
         if prior_plan["generator"] is None and not prior_plan.get("depth_source"):
             return
         if prior_plan.get("depth_source") == "sparse" and trainer.init_info.method in ("sfm", "points") and trainer.step == 0:
@@ -212,7 +218,7 @@ def run_prior_training(scene, train_config, prior_config: PriorConfig, out_dir, 
 
     merged = dict(plan or {})
     metrics = train_and_export(scene, train_config, out_dir, checkpoint_dir, job=job, resume=resume,
-                               plan={**merged, "prior": prior_plan["prior"]}, stream=stream,
+                               plan={**merged, "prior": prior_plan["prior"], "techniques": techniques}, stream=stream,
                                setup_trainer=setup)
     loop = loop_holder.get("loop")
     prior_plan.pop("_sparse_points", None)

@@ -81,6 +81,9 @@ def run(args: argparse.Namespace) -> int:
     check_args(args)  # types, ranges, finiteness of every numeric flag (the rules job.json settings meet)
     if args.prior not in PRIOR_CHOICES:
         raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIOR_CHOICES)}")
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    make_techniques(parse_techniques(args.techniques))  # unknown names / options stop before any data is read
     if args.resolution_scale <= 0:
         raise GsgsError(f"--resolution-scale must be positive (got {args.resolution_scale})")
     config = TrainConfig(iters=args.iters, sh_degree=3 if args.sh_degree is None else args.sh_degree,

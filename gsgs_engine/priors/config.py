@@ -34,6 +34,9 @@ class PriorConfig:
     depth_adapter: str | None = None
     diffusion: dict = field(default_factory=dict)  # DiffusionSettings overrides (steps, strength, ...)
     device: str = "auto"
+    # weights-free sparse-view techniques by name, e.g. ["dropout", "opacity_decay"]
+    # (gsgs_engine.train.techniques.catalogue checks them and adds them to the trainer)
+    techniques: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -116,6 +119,10 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--diffusion-resolution", type=int, default=512)
     g.add_argument("--lora-steps", type=int, default=50)
     g.add_argument("--device", default="auto", help="device of the diffusion prior: auto | cpu | cuda")
+    parser.add_argument("--techniques", default="",
+                        help="weights-free sparse-view techniques, comma-separated: count_control, dropout, "
+                             "binocular, opacity_decay (options as NAME:KEY=VALUE); see "
+                             "gsgs_engine.train.techniques.catalogue")
 
 
 def prior_config_from_args(args) -> PriorConfig:
@@ -124,6 +131,7 @@ def prior_config_from_args(args) -> PriorConfig:
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
                        jitter=args.pseudo_jitter, reach=args.pseudo_reach, diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
+                       techniques=[t for t in (getattr(args, "techniques", "") or "").split(",") if t.strip()],
                        diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,
                                   "resolution": args.diffusion_resolution, "lora_steps": args.lora_steps})
 
@@ -140,4 +148,10 @@ def prior_config_from_settings(settings: dict) -> PriorConfig:
     unknown = sorted(set(d) - known)
     if unknown:
         raise GsgsError(f"job.json: unknown prior settings {unknown}; known: {sorted(known)}")
-    return PriorConfig(prior=settings.get("prior", "none") or "none", **d)
+    techniques = settings.get("techniques") or []
+    if isinstance(techniques, str):
+        techniques = [t for t in techniques.split(",") if t.strip()]
+    elif not isinstance(techniques, list):
+        raise GsgsError(f"job.json: settings.techniques must be a list of names or comma-separated text "
+                        f"(got {type(techniques).__name__})")
+    return PriorConfig(prior=settings.get("prior", "none") or "none", techniques=techniques, **d)

@@ -1,0 +1,79 @@
+"""The weights-free sparse-view techniques a run can switch on by name.
+
+One switch for all of them: `gsgs train --techniques dropout,opacity_decay` (a job: the setting
+"techniques", a list or the same comma-separated text). An item may set the technique's
+options: `count_control:per_pixel=0.05`, `opacity_decay:factor=0.99:start=100`. Names and
+options are checked before training; the techniques are added in the catalogue's order (so
+dropout's `render_inputs` also applies to the binocular technique's shifted render), whatever
+order the request names them in.
+"""
+
+from __future__ import annotations
+
+import inspect
+
+from gsgs_engine import GsgsError
+from gsgs_engine.train.techniques.binocular import BinocularConsistency
+from gsgs_engine.train.techniques.count_control import GaussianBudget
+from gsgs_engine.train.techniques.dropout import GaussianDropout
+from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
+
+#: name -> (class, one line for --help); the order is the order techniques are added in
+TECHNIQUES = {
+    "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
+    "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian)"),
+    "binocular": (BinocularConsistency, "shifted-camera disparity-warp self-consistency (Binocular3DGS)"),
+    "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
+}
+
+
+def _option_value(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def parse_techniques(spec, where: str = "--techniques") -> list[dict]:
+    """'a,b:key=value' or ['a', 'b:key=value'] -> [{"name": ..., "options": {...}}] in catalogue order.
+
+    "" / "none" / None -> []. Unknown names, unknown options and repeated names stop here with
+    one error naming `where` and what is allowed.
+    """
+    if spec is None:
+        return []
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    parsed: dict[str, dict] = {}
+    for raw in items:
+        item = str(raw).strip()
+        if not item or item == "none":
+            continue
+        name, *opts = item.split(":")
+        name = name.strip()
+        if name not in TECHNIQUES:
+            raise GsgsError(f"{where}: unknown technique {name!r}; choose from {', '.join(TECHNIQUES)} "
+                            "(comma-separated, e.g. dropout,opacity_decay)")
+        if name in parsed:
+            raise GsgsError(f"{where}: technique {name!r} is named twice")
+        allowed = [p for p in inspect.signature(TECHNIQUES[name][0].__init__).parameters if p != "self"]
+        options = {}
+        for opt in opts:
+            key, sep, value = opt.partition("=")
+            key = key.strip()
+            if not sep or key not in allowed:
+                raise GsgsError(f"{where}: {name!r} has no option {opt!r}; its options are "
+                                f"{', '.join(allowed) or 'none'} (write {name}:OPTION=VALUE)")
+            options[key] = _option_value(value.strip())
+        parsed[name] = options
+    return [{"name": n, "options": parsed[n]} for n in TECHNIQUES if n in parsed]
+
+
+def make_techniques(parsed: list[dict]) -> list:
+    """The Technique objects of `parse_techniques`' result (constructor checks raise GsgsError)."""
+    return [TECHNIQUES[item["name"]][0](**item["options"]) for item in parsed]
+
+
+def techniques_help() -> str:
+    return "; ".join(f"{name}: {text}" for name, (_, text) in TECHNIQUES.items())

@@ -1,0 +1,237 @@
+"""Weights-free sparse-view techniques (issue 14): each changes what it should, runs resume
+bit-identically with them on, the switch validates names, and the trainer names none of them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.train.technique import StepContext
+from test_trainer import look_at, make_scene, make_trainer
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def ctx_for(trainer, step: int, view: int = 0) -> StepContext:
+    return StepContext(trainer, step, view, None, trainer._targets[view], trainer.background)
+
+
+# -- dropout ----------------------------------------------------------------------------------
+def test_dropout_changes_training_renders_only():
+    from gsgs_engine.train.techniques.dropout import GaussianDropout
+
+    trainer = make_trainer(iters=100)
+    trainer.setup()
+    trainer.add_technique(GaussianDropout())
+    cam = trainer.train_views[0].camera
+    with torch.no_grad():
+        plain = trainer.render(cam).color.clone()
+        late = trainer.render_for_training(ctx_for(trainer, 100), cam).color
+        first = trainer.render_for_training(ctx_for(trainer, 0), cam).color  # p = 0 before training
+        again = trainer.render(cam).color
+    assert not torch.allclose(late, plain, atol=1e-4), "a training render at p = 0.2 must differ"
+    assert torch.equal(first, plain), "p = 0 leaves the render as it is"
+    assert torch.equal(again, plain), "evaluation renders use every Gaussian"
+
+
+def test_dropout_is_unbiased_and_ramps():
+    from gsgs_engine.train.techniques.dropout import drop_rate, dropout_opacities
+
+    assert drop_rate(0, 1000) == 0.0 and drop_rate(500, 1000) == pytest.approx(0.1)
+    assert drop_rate(1000, 1000) == pytest.approx(0.2) and drop_rate(2000, 1000) == pytest.approx(0.2)
+    g = torch.Generator().manual_seed(3)
+    o = torch.rand(200_000, generator=torch.Generator().manual_seed(1))
+    d = dropout_opacities(o, 0.2, g)
+    kept = d > 0
+    assert abs(1 - kept.float().mean().item() - 0.2) < 0.005
+    assert torch.allclose(d[kept], o[kept] / 0.8)
+    assert d.mean().item() == pytest.approx(o.mean().item(), rel=0.01)  # unbiased mean opacity
+
+
+# -- opacity decay ----------------------------------------------------------------------------
+def test_decay_logits_match_the_factor_and_stay_finite():
+    from gsgs_engine.train.techniques.opacity_decay import decay_opacity_logits
+
+    x = torch.tensor([-80.0, -5.0, 0.0, 3.0, 40.0, 200.0])
+    y = decay_opacity_logits(x, 0.995)
+    assert torch.isfinite(y).all()
+    assert torch.allclose(torch.sigmoid(y), 0.995 * torch.sigmoid(x), rtol=1e-5, atol=0)
+
+
+def test_decay_scales_opacities_and_no_reset_happens():
+    from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
+
+    scene = make_scene()
+    scene.background = (0.0, 0.0, 0.0)  # no white-background reset at the start of densification
+    trainer = make_trainer(scene, iters=120, densify=True)
+    trainer.setup()
+    decay = trainer.add_technique(OpacityDecay(start=1))
+    assert trainer.schedule.densify_until == 120
+    assert not any(trainer.schedule.is_opacity_reset_step(s) for s in range(1, 121))
+    before = trainer.model.opacities.detach().clone()
+    decay.after_step(trainer, 1)
+    assert torch.allclose(trainer.model.opacities.detach(), 0.995 * before, rtol=1e-5)
+    trainer.train()
+    assert trainer.opacity_resets == 0 and trainer.nan_steps_skipped == 0
+    assert decay.steps_decayed == 121  # 120 steps plus the call above
+    assert trainer.densify_log[-1]["step"] == 100  # densified to the end (3DGS's schedule stops at step 60)
+
+
+# -- binocular --------------------------------------------------------------------------------
+def _plane_pair(baseline: float):
+    """A textured fronto-parallel plane at depth 5 seen by a camera and its x-shifted twin."""
+    from gsgs_engine.train.techniques.binocular import shifted_camera
+
+    size = 48
+    cam = look_at((0.0, -5.0, 0.0), target=(0.0, 0.0, 0.0), size=size)
+    shifted = shifted_camera(cam, baseline)
+    # the plane y = 0: its texture as a function of world x, z; each camera sees it at z-depth 5
+    from gsgs_engine.priors.warp import unproject
+
+    def image_of(c):
+        pts = unproject(c, torch.full((size, size), 5.0, dtype=torch.float64))
+        x, z = pts[..., 0], pts[..., 2]
+        return torch.stack([0.5 + 0.4 * torch.sin(3 * x), 0.5 + 0.4 * torch.cos(2 * z),
+                            0.5 + 0.2 * torch.sin(x + z)], dim=-1).float()
+
+    return cam, shifted, image_of(cam), image_of(shifted), torch.full((size, size), 5.0)
+
+
+def test_binocular_warp_with_true_depth_reproduces_the_view():
+    from gsgs_engine.train.techniques.binocular import masked_l1, warp_shifted_to_view
+
+    cam, shifted, img, img_shifted, depth = _plane_pair(0.4)
+    warped, valid = warp_shifted_to_view(cam, depth, shifted, img_shifted)
+    assert 0.6 < valid.float().mean() < 1.0  # the strip the shift uncovers is masked out
+    assert (warped - img)[valid].abs().max() < 0.02  # bilinear resampling of a smooth texture
+    assert masked_l1(warped, img, valid) < 2e-3
+    wrong, valid_w = warp_shifted_to_view(cam, depth * 0.7, shifted, img_shifted)
+    assert masked_l1(wrong, img, valid_w) > 5 * masked_l1(warped, img, valid)  # wrong depth costs
+
+
+def test_binocular_terms_have_finite_gradients_and_smoothness_respects_edges():
+    from gsgs_engine.train.techniques.binocular import BinocularConsistency, edge_aware_smoothness
+
+    trainer = make_trainer(iters=10)
+    trainer.setup()
+    bino = trainer.add_technique(BinocularConsistency(start_fraction=0.0))
+    ctx = ctx_for(trainer, 5)
+    cam = trainer.train_views[0].camera
+    ctx.render = trainer.render_for_training(ctx, cam)
+    terms = bino.loss_terms(ctx)
+    assert set(terms) == {"binocular_l1", "binocular_smooth"}
+    loss = sum(w * v for w, v in terms.values())
+    assert torch.isfinite(loss) and loss > 0
+    loss.backward()
+    for name, p in trainer.model.params.items():
+        assert p.grad is None or torch.isfinite(p.grad).all(), name
+    assert trainer.model.params["means"].grad.abs().sum() > 0
+    # a disparity step on an image edge costs less than the same step in a flat region
+    disp = torch.zeros(16, 16)
+    disp[:, 8:] = 1.0
+    edge = torch.zeros(16, 16, 3)
+    edge[:, 8:] = 1.0
+    on_edge, flat = edge_aware_smoothness(disp, edge), edge_aware_smoothness(disp, torch.zeros(16, 16, 3))
+    assert flat > 0 and on_edge / flat == pytest.approx(float(np.exp(-0.5)), rel=1e-5)  # |dI/dx| = 0.5 there
+
+
+# -- count control ----------------------------------------------------------------------------
+def test_count_control_cap_is_respected_and_lowers_the_threshold_when_few():
+    from gsgs_engine.train.techniques.count_control import GaussianBudget, threshold_scale
+
+    assert threshold_scale(10, 1000, 0.5, 0.25) == 0.25
+    assert threshold_scale(250, 1000, 0.5, 0.25) == 0.5
+    assert threshold_scale(600, 1000, 0.5, 0.25) == 1.0
+    trainer = make_trainer(iters=120, densify=True)
+    trainer.config.densify_config.max_gaussians = 100_000
+    trainer.config.densify_config.grad_threshold = 1e-7  # every Gaussian wants to densify
+    trainer.setup()
+    n0 = trainer.model.num_gaussians
+    budget = trainer.add_technique(GaussianBudget(per_pixel=(n0 + 60) / (3 * 32 * 32)))
+    assert budget.budget == max(1000, n0 + 60) and trainer.config.densify_config.max_gaussians == budget.budget
+    trainer.train()
+    assert max(e["num_gaussians"] for e in trainer.densify_log) <= budget.budget
+
+
+# -- resume, the switch, the trainer untouched ------------------------------------------------
+ALL = "count_control,dropout,binocular:start_fraction=0.3,opacity_decay"
+
+
+def _run(tmp_path, until=None, resume=False):
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    trainer = make_trainer(iters=40, densify=True, checkpoint_every=20, tmp_path=tmp_path)
+    trainer.setup(resume=resume)
+    for t in make_techniques(parse_techniques(ALL)):
+        trainer.add_technique(t)
+    trainer.train(until=until)
+    return trainer
+
+
+def test_resume_with_techniques_is_bit_identical(tmp_path):
+    straight = _run(tmp_path / "a")
+    _run(tmp_path / "b", until=20)
+    resumed = _run(tmp_path / "b", resume=True)
+    assert resumed.step == straight.step == 40
+    for name, p in straight.model.params.items():
+        assert torch.equal(p, resumed.model.params[name]), name
+    assert {t.name: t.report() for t in straight.techniques} == {t.name: t.report() for t in resumed.techniques}
+
+
+def test_switch_validates_names_and_options():
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    parsed = parse_techniques("opacity_decay:factor=0.99, dropout")
+    assert [p["name"] for p in parsed] == ["dropout", "opacity_decay"]  # catalogue order
+    assert parsed[1]["options"] == {"factor": 0.99}
+    assert parse_techniques("none") == [] and parse_techniques(None) == []
+    with pytest.raises(GsgsError, match="unknown technique 'drop'.*dropout"):
+        parse_techniques("drop")
+    with pytest.raises(GsgsError, match="no option 'rate=0.3'.*max_rate"):
+        parse_techniques("dropout:rate=0.3")
+    with pytest.raises(GsgsError, match="named twice"):
+        parse_techniques(["dropout", "dropout"])
+    with pytest.raises(GsgsError, match="factor must be in"):
+        make_techniques(parse_techniques("opacity_decay:factor=1.5"))
+
+
+def test_gsgs_train_records_the_techniques(tmp_path, capsys):
+    import json
+
+    from gsgs_engine.cli import main
+    from test_train_cli import write_tiny_blender_scene
+
+    scene = write_tiny_blender_scene(tmp_path / "scene")
+    out = tmp_path / "run"
+    assert main(["train", str(scene), "--out", str(out), "--iters", "8", "--sh-degree", "0", "--init-points", "200",
+                 "--techniques", "opacity_decay:factor=0.99,dropout"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["plan"]["techniques"] == [{"name": "dropout", "options": {}},
+                                             {"name": "opacity_decay", "options": {"factor": 0.99}}]
+    assert set(metrics["techniques"]) == {"dropout", "opacity_decay"}
+    assert metrics["techniques"]["opacity_decay"]["factor"] == 0.99
+    assert metrics["plan"]["schedule"]["densify_until"] == 8  # the decay's schedule is what ran
+    assert main(["train", str(scene), "--out", str(tmp_path / "bad"), "--techniques", "dropuot"]) == 2
+    assert "unknown technique 'dropuot'" in capsys.readouterr().err
+
+
+def test_job_settings_and_cli_carry_the_techniques():
+    from gsgs_engine.priors.config import prior_config_from_settings
+    from gsgs_engine.reconstruct import config_from_settings
+
+    config_from_settings({"techniques": ["dropout"]})  # a known job setting
+    assert prior_config_from_settings({"techniques": "dropout,opacity_decay"}).techniques == ["dropout",
+                                                                                               "opacity_decay"]
+    with pytest.raises(GsgsError, match="settings.techniques"):
+        prior_config_from_settings({"techniques": 3})
+
+
+def test_trainer_names_none_of_these_techniques():
+    """Issue 13's acceptance: a technique touches its module and its registration, not the trainer."""
+    source = (REPO / "gsgs_engine/train/trainer.py").read_text()
+    for name in ("dropout", "opacity_decay", "binocular", "count_control", "catalogue"):
+        assert name not in source
