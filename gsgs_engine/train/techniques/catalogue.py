@@ -14,6 +14,7 @@ import inspect
 
 from gsgs_engine import GsgsError
 from gsgs_engine.train.techniques.binocular import BinocularConsistency
+from gsgs_engine.train.techniques.coregularisation import CoRegularisation
 from gsgs_engine.train.techniques.count_control import GaussianBudget
 from gsgs_engine.train.techniques.dropout import GaussianDropout
 from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
@@ -24,6 +25,8 @@ TECHNIQUES = {
     "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian)"),
     "binocular": (BinocularConsistency, "shifted-camera disparity-warp self-consistency (Binocular3DGS)"),
     "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
+    "coregularisation": (CoRegularisation, "a second field trained alongside, co-regularised at pseudo views and "
+                                           "co-pruned (CoR-GS; about 2x the time; static scenes)"),
 }
 
 

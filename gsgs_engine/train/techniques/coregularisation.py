@@ -103,7 +103,7 @@ class CoRegularisation(Technique):
     name = "coregularisation"
 
     def __init__(self, weight: float = 1.0, start_fraction: float = 0.2, prune_every: int = 500,
-                 prune_radius: float = 0.05, log=print):
+                 prune_radius: float = 0.05):
         if not (np.isfinite(weight) and weight >= 0):
             raise GsgsError(f"co-regularisation weight must be >= 0, got {weight}")
         if not 0.0 <= start_fraction <= 1.0:
@@ -112,7 +112,6 @@ class CoRegularisation(Technique):
         self.start_fraction = float(start_fraction)
         self.prune_every = int(prune_every)
         self.prune_radius = float(prune_radius)  # a fraction of the trainer's size_extent
-        self.log = log
         self.partner = None
         self.trainer = None
         self.pool = []
