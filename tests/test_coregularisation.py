@@ -97,3 +97,14 @@ def test_refuses_scenes_with_time():
     trainer.setup()
     with pytest.raises(GsgsError, match="4D"):
         trainer.add_technique(CoRegularisation())
+
+
+def test_switched_on_by_name_with_options():
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    parsed = parse_techniques("coregularisation:weight=0.5:prune_every=250,dropout")
+    assert [p["name"] for p in parsed] == ["dropout", "coregularisation"]
+    tech = make_techniques(parsed)[1]
+    assert isinstance(tech, CoRegularisation) and tech.weight == 0.5 and tech.prune_every == 250
+    with pytest.raises(GsgsError, match="no option"):
+        parse_techniques("coregularisation:log=1")
