@@ -24,6 +24,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "rasterizer": ("gsgs_engine.render.bench", "forward / backward time and memory of each rasteriser backend"),
     "accuracy": ("gsgs_engine.bench_accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
     "dynamic": ("gsgs_engine.bench_dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
+    "train-step": ("gsgs_engine.bench.train_step", "ms per training step on real scenes, old vs new CPU kernel, with a profile"),
 }
 
 

@@ -18,6 +18,8 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include "phase_timer.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -257,6 +259,7 @@ template <typename S>
 ProjectResult forward_impl(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
                            const at::Tensor& sh, const at::Tensor& cam, double fx, double fy, double cx, double cy,
                            int64_t width, int64_t height, double near_, double far_, int64_t sh_degree) {
+  gsgs_phase::Lap lap;
   check_all<S>(means, quats, scales, sh, sh_degree);
   const Cam<S> k = make_cam<S>(cam, fx, fy, cx, cy, width, height, near_, far_);
   const int64_t n = means.size(0);
@@ -314,6 +317,7 @@ ProjectResult forward_impl(const at::Tensor& means, const at::Tensor& quats, con
       }
     }
   });
+  lap(gsgs_phase::kProjectForward);
   return {means2d, conics, depths, radii, colors};
 }
 
@@ -325,6 +329,7 @@ ProjectGrads backward_impl(const at::Tensor& means, const at::Tensor& quats, con
                            int64_t width, int64_t height, double near_, double far_, int64_t sh_degree,
                            const at::Tensor& radii, const at::Tensor& g_means2d, const at::Tensor& g_conics,
                            const at::Tensor& g_depths, const at::Tensor& g_colors) {
+  gsgs_phase::Lap lap;
   check_all<S>(means, quats, scales, sh, sh_degree);
   const int64_t n = means.size(0);
   check_tensor<S>(g_means2d, "grad means2d", n, {2});
@@ -504,6 +509,7 @@ ProjectGrads backward_impl(const at::Tensor& means, const at::Tensor& quats, con
       for (int i = 0; i < 4; ++i) dq[i] = inv * dqn[i] - k3 * q[i];
     }
   });
+  lap(gsgs_phase::kProjectBackward);
   return {d_means, d_quats, d_scales, d_sh};
 }
 

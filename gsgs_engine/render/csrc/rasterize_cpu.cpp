@@ -21,6 +21,8 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include "phase_timer.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -552,7 +554,9 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
   check_inputs(means2d, conics, colors, opacities, depths, radii, width, height, background);
   const int W = static_cast<int>(width), H = static_cast<int>(height);
   const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
+  gsgs_phase::Lap lap;
   Binning b = bin_gaussians(means2d, conics, colors, opacities, depths, radii, tiles_x, tiles_y);
+  lap(gsgs_phase::kBinning);
 
   at::Tensor color = at::empty({H, W, 3}, at::kFloat);
   at::Tensor depth = at::empty({H, W}, at::kFloat);
@@ -573,6 +577,7 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
                  bg, color_p, depth_p, alpha_p, T_p, last_p);
   });
 
+  lap(gsgs_phase::kRasterForward);
   const int64_t n_vis = static_cast<int64_t>(b.order.size());
   at::Tensor order = at::empty({n_vis}, at::kInt);
   at::Tensor slot_offset = at::empty({n_vis + 1}, at::kInt);
@@ -606,6 +611,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   TORCH_CHECK(tile_offsets.numel() == n_tiles + 1 && slot_offset.numel() == n_vis + 1,
               "rasterize_cpu backward: saved state does not match the image size");
 
+  gsgs_phase::Lap lap;
   // Packed records again (cheaper to rebuild than to keep alive between the passes).
   const float* m = means2d.data_ptr<float>();
   const float* cn = conics.data_ptr<float>();
@@ -635,12 +641,14 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const float* gc = grad_color.data_ptr<float>();
   const float* gd = grad_depth.data_ptr<float>();
   const float* ga = grad_alpha.data_ptr<float>();
+  lap(gsgs_phase::kBackwardPrep);
   for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
     backward_tile(splats.data(), ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
                   ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, entry_grad.data());
   });
 
+  lap(gsgs_phase::kRasterBackward);
   at::Tensor g_means = at::zeros({n, 2}, at::kFloat);
   at::Tensor g_conics = at::zeros({n, 3}, at::kFloat);
   at::Tensor g_colors = at::zeros({n, 3}, at::kFloat);
@@ -673,12 +681,25 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
       gz[g] = sum[9];
     }
   });
+  lap(gsgs_phase::kBackwardReduce);
   return {g_means, g_conics, g_colors, g_opac, g_depth};
 }
 
 }  // namespace
 
+at::Tensor phase_seconds() {
+  at::Tensor out = at::empty({gsgs_phase::kCount}, at::kDouble);
+  for (int i = 0; i < gsgs_phase::kCount; ++i) out.data_ptr<double>()[i] = gsgs_phase::g_ns[i].load() * 1e-9;
+  return out;
+}
+
+void reset_phase_seconds() {
+  for (auto& c : gsgs_phase::g_ns) c.store(0);
+}
+
 TORCH_LIBRARY(gsgs_raster_cpu, m) {
+  m.def("phase_seconds() -> Tensor", &phase_seconds);
+  m.def("reset_phase_seconds() -> ()", &reset_phase_seconds);
   m.def(
       "forward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
       "int width, int height, Tensor background) -> (Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, "
