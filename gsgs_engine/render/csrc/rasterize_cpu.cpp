@@ -346,13 +346,18 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
   vf px[kVecPerRow];
   pixel_centres(px0, px);
 
-  for (int j = count - 1; j >= 0; --j) {
+  // Entries behind every pixel's last contributor (transmittance spent) get a zero record, no work.
+  for (int j = count - 1; j >= max_last; --j) {
+    std::memset(entry_grad + static_cast<int64_t>(slots[j]) * kGradFields, 0, kGradFields * sizeof(float));
+  }
+  for (int j = std::min(count, max_last) - 1; j >= 0; --j) {
     float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
     const Splat s = splats[ranks[j]];
     int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
-    if (j < max_last) reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
     vf acc[kGradFields];
     for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
+    bool touched = false;
     const vi position = splat_i(j);
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
@@ -367,6 +372,7 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
         const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
         if (!any(valid)) continue;
+        touched = true;
         const vf one_minus = 1.0f - alpha;  // >= 0.01
         const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
         const vf T_before = T[v] * inv_one_minus;
@@ -394,7 +400,11 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         T[v] = select(valid, T_before, T[v]);
       }
     }
-    for (int f = 0; f < kGradFields; ++f) record[f] = hsum(acc[f]);
+    if (touched) {
+      for (int f = 0; f < kGradFields; ++f) record[f] = hsum(acc[f]);
+    } else {
+      std::memset(record, 0, kGradFields * sizeof(float));
+    }
   }
 }
 
@@ -634,7 +644,14 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const int32_t* ranks = tile_ranks.data_ptr<int32_t>();
   const int32_t* slots = entry_slots.data_ptr<int32_t>();
   const int64_t n_entries = tile_ranks.numel();
-  std::vector<float> entry_grad(static_cast<size_t>(n_entries) * kGradFields);
+  // Every record is written exactly once by its tile, so the buffer needs no zeroing; it is kept per
+  // calling thread between calls (no page faults for a fresh ~40 bytes per entry every step).
+  static thread_local std::vector<float> entry_grad;
+  const size_t need = static_cast<size_t>(n_entries) * kGradFields;
+  if (entry_grad.size() < need || entry_grad.size() > 4 * need + (size_t{1} << 20)) {
+    std::vector<float>().swap(entry_grad);
+    entry_grad.resize(need);
+  }
   const float* bg = background.data_ptr<float>();
   const float* T_p = final_T.data_ptr<float>();
   const int32_t* last_p = last.data_ptr<int32_t>();
