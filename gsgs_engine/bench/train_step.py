@@ -6,6 +6,11 @@ steps after `--warmup` untimed ones. The backends compared in one run are "cpu_l
 (projection and SH in torch, compositing compiled: the kernel before issue 17) and "cpu"
 (projection, SH and compositing compiled); cells alternate between them so that load from
 other processes falls on both alike. Reported: the median and the minimum step time.
+A backend written `NAME@DIR` runs NAME from the gsgs checkout in DIR instead of this one (a pinned
+build of an older commit, e.g. `git worktree add /tmp/old <commit>`; its extension builds into its
+own hash-keyed folder): `--backends cpu@/tmp/old,cpu` compares today's kernel with that commit's.
+An older checkout lacks the kernel's phase clocks: its compiled phases then show as "-" and its whole
+render and backward phases under torch fwd / bwd.
 
 The profile splits each step (averages over the timed steps, ms):
   proj+SH fwd / bwd   projection (EWA, eq. 2) and SH colour, compiled kernel (one fused pass each)
@@ -117,6 +122,7 @@ def run_cell(scene_name: str, data: str, n: int, backend: str, steps: int, warmu
     scene = load_scene(Path(data) / folder, **kwargs)
     select_backend(backend, torch.device("cpu"), torch.float32)  # loads (or builds) the extension first
     ops = cpu_backend._ops()
+    clocks = hasattr(ops, "phase_seconds")  # a pinned older build has none
     config = TrainConfig(iters=10_000, backend=backend, seed=seed, sh_degree=3)
     trainer = Trainer(scene, config)
     model = synthetic_model(scene, trainer.train_views, n, seed)
@@ -128,23 +134,25 @@ def run_cell(scene_name: str, data: str, n: int, backend: str, steps: int, warmu
         raise GsgsError(f"the model changed size during the warm-up ({trainer.model.num_gaussians} != {n})")
 
     phases_before = dict(trainer.phase_seconds)
-    ops.reset_phase_seconds()
+    if clocks:
+        ops.reset_phase_seconds()
     times = []
     for _ in range(steps):
         t0 = time.perf_counter()
         trainer.train_step()
         times.append((time.perf_counter() - t0) * 1000)
-    kernel = dict(zip(KERNEL_PHASES, (1000 * v / steps for v in ops.phase_seconds().tolist())))
+    kernel = dict(zip(KERNEL_PHASES, (1000 * v / steps for v in ops.phase_seconds().tolist()) if clocks
+                      else [float("nan")] * len(KERNEL_PHASES)))
     trainer_ms = {k: 1000 * (trainer.phase_seconds[k] - phases_before[k]) / steps for k in phases_before}
+    k0 = {k: (0.0 if math.isnan(v) else v) for k, v in kernel.items()}
     profile = {
         "proj_fwd": kernel["proj_fwd"],
         "binning": kernel["binning"],
         "raster_fwd": kernel["raster_fwd"],
-        "torch_fwd": trainer_ms["render"] - kernel["proj_fwd"] - kernel["binning"] - kernel["raster_fwd"],
+        "torch_fwd": trainer_ms["render"] - k0["proj_fwd"] - k0["binning"] - k0["raster_fwd"],
         "raster_bwd": kernel["bwd_prep"] + kernel["raster_bwd"] + kernel["bwd_reduce"],
         "proj_bwd": kernel["proj_bwd"],
-        "torch_bwd": trainer_ms["backward"] - kernel["bwd_prep"] - kernel["raster_bwd"] - kernel["bwd_reduce"]
-        - kernel["proj_bwd"],
+        "torch_bwd": trainer_ms["backward"] - k0["bwd_prep"] - k0["raster_bwd"] - k0["bwd_reduce"] - k0["proj_bwd"],
         "optimiser": trainer_ms["optimise"],
         "densify": trainer_ms["densify"],
     }
@@ -157,13 +165,23 @@ def run_cell(scene_name: str, data: str, n: int, backend: str, steps: int, warmu
 
 
 def _run_cell_subprocess(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, "-m", "gsgs_engine.bench.train_step", "--cell", json.dumps(spec)],
-                          capture_output=True, text=True)
+    import os
+    from pathlib import Path
+
+    backend, _, tree = spec["backend"].partition("@")
+    env = dict(os.environ)
+    if tree:
+        # This file runs as a script, so `import gsgs_engine` finds the pinned checkout first.
+        env["PYTHONPATH"] = os.pathsep.join([str(Path(tree).resolve())] + [p for p in [env.get("PYTHONPATH")] if p])
+        command = [sys.executable, str(Path(__file__).resolve()), "--cell", json.dumps({**spec, "backend": backend})]
+    else:
+        command = [sys.executable, "-m", "gsgs_engine.bench.train_step", "--cell", json.dumps(spec)]
+    proc = subprocess.run(command, capture_output=True, text=True, env=env)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
     if proc.returncode != 0 or not lines:
         err = (proc.stderr.strip().splitlines() or ["no output"])[-1]
         return {"scene": spec["scene"], "gaussians": spec["n"], "backend": spec["backend"], "error": err[:300]}
-    return json.loads(lines[-1])
+    return {**json.loads(lines[-1]), "backend": spec["backend"]}
 
 
 def _parse(text: str, name: str) -> list[str]:
@@ -175,17 +193,18 @@ def _parse(text: str, name: str) -> list[str]:
 
 def markdown_tables(rows: list[dict], backends: list[str]) -> str:
     ok = [r for r in rows if "error" not in r]
+    ratio = len(backends) >= 2  # the last backend against the first
     out = ["| scene | gaussians | " + " | ".join(f"{b} ms/step (median / min)" for b in backends)
-           + (" | speed-up (median / min) |" if len(backends) == 2 else " |"),
-           "|---|---:|" + "---:|" * len(backends) + ("---:|" if len(backends) == 2 else "")]
+           + (f" | speed-up {backends[-1]} vs {backends[0]} (median / min) |" if ratio else " |"),
+           "|---|---:|" + "---:|" * len(backends) + ("---:|" if ratio else "")]
     cells = {(r["scene"], r["gaussians"], r["backend"]): r for r in ok}
     for scene, n in dict.fromkeys((r["scene"], r["gaussians"]) for r in rows):
         line = f"| {scene} | {n} |"
         found = [cells.get((scene, n, b)) for b in backends]
         for r in found:
             line += " - |" if r is None else f" {r['step_ms_median']:.1f} / {r['step_ms_min']:.1f} |"
-        if len(backends) == 2:
-            old, new = found
+        if ratio:
+            old, new = found[0], found[-1]
             line += (f" {old['step_ms_median'] / new['step_ms_median']:.2f}x / {old['step_ms_min'] / new['step_ms_min']:.2f}x |"
                      if old and new else " - |")
         out.append(line)
@@ -195,7 +214,8 @@ def markdown_tables(rows: list[dict], backends: list[str]) -> str:
     for r in ok:
         p = r["profile_ms"]
         out.append(f"| {r['scene']} | {r['gaussians']} | {r['backend']} | "
-                   + " | ".join(f"{p[k]:.1f}" for k in PHASES) + f" | {r['loss_alone_ms']:.1f} |")
+                   + " | ".join("-" if math.isnan(p[k]) else f"{p[k]:.1f}" for k in PHASES)
+                   + f" | {r['loss_alone_ms']:.1f} |")
     for r in rows:
         if "error" in r:
             out.append(f"\n{r['scene']} N={r['gaussians']} {r['backend']}: failed: {r['error']}")
@@ -223,7 +243,12 @@ def run(args) -> int:
     from gsgs_engine.render.api import available_backends
 
     status = available_backends()
-    for b in backends:
+    for spec in backends:
+        b, _, tree = spec.partition("@")
+        if tree and not (Path(tree) / "gsgs_engine").is_dir():
+            raise GsgsError(f"--backends {spec}: {tree} is not a gsgs checkout (no gsgs_engine/ in it)")
+        if tree:
+            continue  # checked by the worker, in that checkout
         if b not in status or not status[b][0]:
             raise GsgsError(f"--backends: {b!r} is not usable here ({status.get(b, (False, 'unknown backend'))[1]})")
 
