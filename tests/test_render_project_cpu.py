@@ -146,11 +146,11 @@ def test_tiny_images(project_cpu):
         check(project_both(project_cpu, params, cam, 2), 1e-10, f"{w}x{h}")
 
 
-def _render_grads(backend, params, camera, degree=3):
+def _render_grads(backend, params, camera, degree=3, depth_weight=0.05):
     leaves = [p.clone().requires_grad_(True) for p in params]
     out = render(*leaves, camera=camera, sh_degree=degree, background=torch.tensor([0.2, 0.4, 0.6]), backend=backend)
     g = torch.Generator().manual_seed(7)
-    loss = ((out.color * torch.rand(out.color.shape, generator=g)).sum() + 0.05 * out.depth.sum()
+    loss = ((out.color * torch.rand(out.color.shape, generator=g)).sum() + depth_weight * out.depth.sum()
             + (out.alpha * torch.rand(out.alpha.shape, generator=g)).sum())
     loss.backward()
     return out, [p.grad for p in leaves] + [out.means2d.grad]
@@ -162,10 +162,11 @@ def _render_params(seed, n):
     return [means, quats, scales, opacities, sh]
 
 
-def test_render_matches_the_reference_renderer(project_cpu):
+@pytest.mark.parametrize("depth_weight", [0.05, 0.0])  # 0: no depth gradient, the kernel skips its terms
+def test_render_matches_the_reference_renderer(project_cpu, depth_weight):
     camera, params = tilted_camera(61, 43), _render_params(21, 300)
-    out_c, grads_c = _render_grads("cpu", params, camera)
-    out_r, grads_r = _render_grads("reference", params, camera)
+    out_c, grads_c = _render_grads("cpu", params, camera, depth_weight=depth_weight)
+    out_r, grads_r = _render_grads("reference", params, camera, depth_weight=depth_weight)
     assert out_c.backend == "cpu" and int(out_c.visible.sum()) > 150
     for field in ("color", "depth", "alpha"):
         err = float((getattr(out_c, field) - getattr(out_r, field)).detach().abs().max())

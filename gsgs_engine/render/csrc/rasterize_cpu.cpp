@@ -85,6 +85,17 @@ GSGS_INLINE float hsum(vf v) {
   for (int i = 0; i < kLanes; ++i) s += v[i];
   return s;
 }
+// Lane sums of eight vectors at once -> out[0..7]: three shuffle-and-add levels instead of 8 x 7 scalar adds.
+GSGS_INLINE void hsum8(const vf* a, float* out) {
+  const vi even = {0, 8, 2, 10, 4, 12, 6, 14}, odd = {1, 9, 3, 11, 5, 13, 7, 15};
+  const vi lo2 = {0, 1, 8, 9, 4, 5, 12, 13}, hi2 = {2, 3, 10, 11, 6, 7, 14, 15};
+  const vi lo4 = {0, 1, 2, 3, 8, 9, 10, 11}, hi4 = {4, 5, 6, 7, 12, 13, 14, 15};
+  vf p[4], q[2];
+  for (int i = 0; i < 4; ++i) p[i] = __builtin_shuffle(a[2 * i], a[2 * i + 1], even) + __builtin_shuffle(a[2 * i], a[2 * i + 1], odd);
+  for (int i = 0; i < 2; ++i) q[i] = __builtin_shuffle(p[2 * i], p[2 * i + 1], lo2) + __builtin_shuffle(p[2 * i], p[2 * i + 1], hi2);
+  const vf r = __builtin_shuffle(q[0], q[1], lo4) + __builtin_shuffle(q[0], q[1], hi4);
+  std::memcpy(out, &r, sizeof r);
+}
 
 // exp(x) for the alpha test, x clamped to [-87, 0] (NaN -> -87): Cephes' expf polynomial with
 // round-to-nearest range reduction, ~1 ulp, exp(0) == 1 exactly. libm's expf cannot be vectorised
@@ -314,7 +325,8 @@ GSGS_HOT void forward_tile(const Splat* splats, const int32_t* ranks, int count,
 GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int32_t* slots, int count,
                             int px0, int py0, int width, int height, const float* background,
                             const float* final_T, const int32_t* last_in, const float* grad_color,
-                            const float* grad_depth, const float* grad_alpha, float* entry_grad) {
+                            const float* grad_depth, const float* grad_alpha, bool with_depth,
+                            float* entry_grad) {
   vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
   vi last[kVecs];
   const int rows = std::min(kTile, height - py0);
@@ -377,9 +389,9 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
         const vf T_before = T[v] * inv_one_minus;
         const vf w = select(valid, alpha * T_before, splat(0.0f));
-        const vf dL_dalpha = T_before * (gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]) +
-                                         gz[v] * (s.depth - Sz[v])) +
-                             K[v] * inv_one_minus;
+        vf dot = gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]);
+        if (with_depth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
+        const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
         const vf dL_dpower = dL_doG * oG;
@@ -392,16 +404,18 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         acc[6] += gg[v] * w;
         acc[7] += gb[v] * w;
         acc[8] += dL_doG * G;
-        acc[9] += gz[v] * w;
+        if (with_depth) acc[9] += gz[v] * w;
         Sr[v] = select(valid, alpha * s.r + one_minus * Sr[v], Sr[v]);
         Sg[v] = select(valid, alpha * s.g + one_minus * Sg[v], Sg[v]);
         Sb[v] = select(valid, alpha * s.b + one_minus * Sb[v], Sb[v]);
-        Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
+        if (with_depth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
         T[v] = select(valid, T_before, T[v]);
       }
     }
     if (touched) {
-      for (int f = 0; f < kGradFields; ++f) record[f] = hsum(acc[f]);
+      hsum8(acc, record);
+      record[8] = hsum(acc[8]);
+      record[9] = hsum(acc[9]);
     } else {
       std::memset(record, 0, kGradFields * sizeof(float));
     }
@@ -658,11 +672,13 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const float* gc = grad_color.data_ptr<float>();
   const float* gd = grad_depth.data_ptr<float>();
   const float* ga = grad_alpha.data_ptr<float>();
+  // Training losses rarely use depth: without a depth gradient its terms are skipped in the tile loop.
+  const bool with_depth = std::any_of(gd, gd + static_cast<int64_t>(H) * W, [](float g) { return g != 0.0f; });
   lap(gsgs_phase::kBackwardPrep);
   for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
     backward_tile(splats.data(), ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
-                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, entry_grad.data());
+                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, entry_grad.data());
   });
 
   lap(gsgs_phase::kRasterBackward);
