@@ -18,6 +18,8 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include "hot.h"
+
 #include "phase_timer.h"
 
 #include <algorithm>
@@ -83,13 +85,13 @@ Cam<S> make_cam(const at::Tensor& cam, double fx, double fy, double cx, double c
 }
 
 template <typename S>
-inline S rsqrt_clamped(S v, S eps) {
+inline __attribute__((always_inline)) S rsqrt_clamped(S v, S eps) {
   return S(1) / std::sqrt(std::max(v, eps));
 }
 
 // Rotation matrix (row-major) of a unit quaternion (w, x, y, z), as project.quat_to_rotmat.
 template <typename S>
-inline void rotmat(S w, S x, S y, S z, S* R) {
+inline __attribute__((always_inline)) void rotmat(S w, S x, S y, S z, S* R) {
   R[0] = 1 - 2 * (y * y + z * z);
   R[1] = 2 * (x * y - w * z);
   R[2] = 2 * (x * z + w * y);
@@ -103,7 +105,7 @@ inline void rotmat(S w, S x, S y, S z, S* R) {
 
 // SH basis values (sh.py's eval_sh, term by term) along a unit direction; returns the count used.
 template <typename S>
-inline int sh_basis(int degree, S x, S y, S z, S* b) {
+inline __attribute__((always_inline)) int sh_basis(int degree, S x, S y, S z, S* b) {
   b[0] = static_cast<S>(SH_C0);
   if (degree == 0) return 1;
   const S c1 = static_cast<S>(SH_C1);
@@ -130,7 +132,7 @@ inline int sh_basis(int degree, S x, S y, S z, S* b) {
 
 // d(basis_k)/d(x, y, z) for k < count, as rows [k][3].
 template <typename S>
-inline void sh_basis_grad(int degree, S x, S y, S z, S (*d)[3]) {
+inline __attribute__((always_inline)) void sh_basis_grad(int degree, S x, S y, S z, S (*d)[3]) {
   for (int k = 0; k < 16; ++k) d[k][0] = d[k][1] = d[k][2] = 0;
   if (degree == 0) return;
   const S c1 = static_cast<S>(SH_C1);
@@ -176,7 +178,7 @@ struct Proj {
 };
 
 template <typename S>
-inline void project_one(const Cam<S>& k, const S* m, const S* q, const S* s, Proj<S>& p) {
+inline __attribute__((always_inline)) void project_one(const Cam<S>& k, const S* m, const S* q, const S* s, Proj<S>& p) {
   const S* R = k.R;
   S pc[3];
   for (int r = 0; r < 3; ++r) pc[r] = R[3 * r] * m[0] + R[3 * r + 1] * m[1] + R[3 * r + 2] * m[2] + k.t[r];
@@ -253,6 +255,204 @@ void check_all(const at::Tensor& means, const at::Tensor& quats, const at::Tenso
               " coefficients per channel, degree ", sh_degree, " needs ", (sh_degree + 1) * (sh_degree + 1));
 }
 
+// Projection and colour of Gaussians [g0, g1) (one thread's share).
+template <typename S>
+GSGS_HOT void forward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const S* hp, int64_t n_coeffs,
+                            int64_t sh_degree, S* o_m, S* o_k, S* o_d, S* o_c, int32_t* o_r, int64_t g0, int64_t g1) {
+  Proj<S> p;
+  for (int64_t g = g0; g < g1; ++g) {
+    const S* m = mp + 3 * g;
+    project_one(k, m, qp + 4 * g, sp + 3 * g, p);
+    o_k[3 * g] = p.c_s / p.det_s;
+    o_k[3 * g + 1] = -p.b_s / p.det_s;
+    o_k[3 * g + 2] = p.a_s / p.det_s;
+    const S mx = k.fx * p.x / p.z + k.cx;
+    const S my = k.fy * p.y / p.z + k.cy;
+    o_m[2 * g] = mx;
+    o_m[2 * g + 1] = my;
+    o_d[g] = p.z;
+    // Radius from the largest eigenvalue, in double (no gradient).
+    const double a64 = p.a_s, c64 = p.c_s, det64 = p.det_s;
+    const double mid = 0.5 * (a64 + c64);
+    const double lam = mid + std::sqrt(std::max(mid * mid - det64, 0.0));
+    const double radius = std::ceil(3.0 * std::sqrt(std::max(lam, 0.0)));
+    const double mx64 = mx, my64 = my;
+    const bool on_screen = mx64 + radius > 0 && mx64 - radius < k.width && my64 + radius > 0 &&
+                           my64 - radius < k.height;
+    const bool visible = p.ok && on_screen && std::isfinite(radius);
+    o_r[g] = visible ? static_cast<int32_t>(std::min(std::max(radius, 1.0), kMaxRadius)) : 0;
+
+    // Colour along the view direction.
+    S dir[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
+    const S inv = rsqrt_clamped(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2], static_cast<S>(kDirEps));
+    S basis[16];
+    const int nb = sh_basis(static_cast<int>(sh_degree), dir[0] * inv, dir[1] * inv, dir[2] * inv, basis);
+    const S* coeffs = hp + g * n_coeffs * 3;
+    for (int ch = 0; ch < 3; ++ch) {
+      S v = 0;
+      for (int b = 0; b < nb; ++b) v += basis[b] * coeffs[3 * b + ch];
+      v += S(0.5);
+      o_c[3 * g + ch] = v >= 0 ? v : S(0);
+    }
+  }
+}
+
+// Gradients of Gaussians [g0, g1) (one thread's share).
+template <typename S>
+GSGS_HOT void backward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const S* hp, int64_t n_coeffs,
+                             int deg, const int32_t* rp, const S* gm, const S* gk, const S* gd, const S* gc, S* dm_p,
+                             S* dq_p, S* ds_p, S* dh_p, int64_t g0, int64_t g1) {
+  Proj<S> p;
+  for (int64_t g = g0; g < g1; ++g) {
+    S* dm = dm_p + 3 * g;
+    S* dq = dq_p + 4 * g;
+    S* ds = ds_p + 3 * g;
+    S* dh = dh_p + g * n_coeffs * 3;
+    std::fill(dh, dh + n_coeffs * 3, S(0));
+    if (rp[g] <= 0) {  // culled: the rasteriser ignores it, so nothing reaches its parameters
+      std::fill(dm, dm + 3, S(0));
+      std::fill(dq, dq + 4, S(0));
+      std::fill(ds, ds + 3, S(0));
+      continue;
+    }
+    const S* m = mp + 3 * g;
+    const S* q = qp + 4 * g;
+    const S* s = sp + 3 * g;
+    project_one(k, m, q, s, p);
+    const S x = p.x, y = p.y, z = p.z;
+
+    // --- colour: SH + 0.5, clamp_min(0) --------------------------------------------------
+    S dmean[3] = {0, 0, 0};
+    {
+      const S v[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
+      const S vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+      const S inv = rsqrt_clamped(vv, static_cast<S>(kDirEps));
+      const S d[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
+      S basis[16];
+      const int nb = sh_basis(deg, d[0], d[1], d[2], basis);
+      const S* coeffs = hp + g * n_coeffs * 3;
+      S dcol[3];
+      bool any = false;
+      for (int ch = 0; ch < 3; ++ch) {
+        S val = 0;
+        for (int b = 0; b < nb; ++b) val += basis[b] * coeffs[3 * b + ch];
+        val += S(0.5);
+        dcol[ch] = val >= 0 ? gc[3 * g + ch] : S(0);
+        any = any || dcol[ch] != 0;
+      }
+      for (int b = 0; b < nb; ++b)
+        for (int ch = 0; ch < 3; ++ch) dh[3 * b + ch] = basis[b] * dcol[ch];
+      if (any && deg > 0) {
+        S db[16][3];
+        sh_basis_grad(deg, d[0], d[1], d[2], db);
+        S ddir[3] = {0, 0, 0};
+        for (int b = 1; b < nb; ++b) {
+          const S w = coeffs[3 * b] * dcol[0] + coeffs[3 * b + 1] * dcol[1] + coeffs[3 * b + 2] * dcol[2];
+          for (int i = 0; i < 3; ++i) ddir[i] += w * db[b][i];
+        }
+        // d = v * rsqrt(max(|v|^2, eps)): dv = inv ddir - inv^3 (ddir . v) v where |v|^2 >= eps
+        const S dot = ddir[0] * v[0] + ddir[1] * v[1] + ddir[2] * v[2];
+        const S k3 = vv >= static_cast<S>(kDirEps) ? inv * inv * inv * dot : S(0);
+        for (int i = 0; i < 3; ++i) dmean[i] += inv * ddir[i] - k3 * v[i];
+      }
+    }
+
+    // --- camera-space point: means2d and depth ----------------------------------------------
+    S dx = 0, dy = 0, dz = gd[g];
+    {
+      const S gmx = gm[2 * g], gmy = gm[2 * g + 1];
+      dx += gmx * k.fx / z;
+      dy += gmy * k.fy / z;
+      dz -= (gmx * k.fx * x + gmy * k.fy * y) / (z * z);
+    }
+
+    // --- conic (c, -b, a) / det and the dilated determinant ------------------------------------
+    S dU[6] = {0, 0, 0, 0, 0, 0};
+    S dJW[6];
+    if (p.ok) {
+      const S* U = p.U;
+      const S k0 = gk[3 * g], k1 = gk[3 * g + 1], k2 = gk[3 * g + 2];
+      const S inv_det = S(1) / p.det;
+      const S ddet = -(k0 * p.c_s - k1 * p.b_s + k2 * p.a_s) * inv_det * inv_det;
+      const S lp = static_cast<S>(kLowPass);
+      const S da = k2 * inv_det + lp * ddet;
+      const S dc = k0 * inv_det + lp * ddet;
+      const S db = -k1 * inv_det;
+      const S m01 = U[0] * U[4] - U[1] * U[3];
+      const S m02 = U[0] * U[5] - U[2] * U[3];
+      const S m12 = U[1] * U[5] - U[2] * U[4];
+      const S d01 = 2 * m01 * ddet, d02 = 2 * m02 * ddet, d12 = 2 * m12 * ddet;
+      for (int i = 0; i < 3; ++i) {
+        dU[i] += 2 * da * U[i] + db * U[3 + i];
+        dU[3 + i] += 2 * dc * U[3 + i] + db * U[i];
+      }
+      dU[0] += d01 * U[4] + d02 * U[5];
+      dU[4] += d01 * U[0] - d12 * U[2];
+      dU[1] += -d01 * U[3] + d12 * U[5];
+      dU[3] += -d01 * U[1] - d02 * U[2];
+      dU[5] += d02 * U[0] + d12 * U[1];
+      dU[2] += -d02 * U[3] - d12 * U[4];
+    }
+    // U = JW M: dJW = dU M^T, dM = JW^T dU
+    S dM[9];
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 3; ++c)
+        dJW[3 * r + c] = dU[3 * r] * p.M[3 * c] + dU[3 * r + 1] * p.M[3 * c + 1] + dU[3 * r + 2] * p.M[3 * c + 2];
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) dM[3 * r + c] = p.JW[r] * dU[c] + p.JW[3 + r] * dU[3 + c];
+    // JW = J W: dJ = dJW W^T (only J00, J02, J11, J12 depend on the point)
+    const S* R = k.R;
+    S dJ[6];
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 3; ++c)
+        dJ[3 * r + c] = dJW[3 * r] * R[3 * c] + dJW[3 * r + 1] * R[3 * c + 1] + dJW[3 * r + 2] * R[3 * c + 2];
+    {
+      const S cxz = std::min(std::max(p.txtz, -k.lim_left), k.lim_right);
+      const S cyz = std::min(std::max(p.tytz, -k.lim_top), k.lim_bottom);
+      const S z2 = z * z;
+      dz += -dJ[0] * k.fx / z2 + dJ[2] * k.fx * cxz / z2 - dJ[4] * k.fy / z2 + dJ[5] * k.fy * cyz / z2;
+      const S dtx = -dJ[2] * k.fx / z;
+      const S dty = -dJ[5] * k.fy / z;
+      if (p.txtz >= -k.lim_left && p.txtz <= k.lim_right) {
+        dx += dtx / z;
+        dz -= dtx * x / z2;
+      }
+      if (p.tytz >= -k.lim_top && p.tytz <= k.lim_bottom) {
+        dy += dty / z;
+        dz -= dty * y / z2;
+      }
+    }
+    // p_cam = R m + t
+    if (p.in_range) {
+      for (int i = 0; i < 3; ++i) dmean[i] += R[i] * dx + R[3 + i] * dy + R[6 + i] * dz;
+    }
+    for (int i = 0; i < 3; ++i) dm[i] = dmean[i];
+
+    // M = Rq diag(s)
+    S dR[9];
+    for (int c = 0; c < 3; ++c) {
+      ds[c] = dM[c] * p.Rq[c] + dM[3 + c] * p.Rq[3 + c] + dM[6 + c] * p.Rq[6 + c];
+      for (int r = 0; r < 3; ++r) dR[3 * r + c] = dM[3 * r + c] * s[c];
+    }
+    // Rq(w, x, y, z) of the normalised quaternion
+    const S w = p.qn[0], qx = p.qn[1], qy = p.qn[2], qz = p.qn[3];
+    S dqn[4];
+    dqn[0] = 2 * (-qz * dR[1] + qy * dR[2] + qz * dR[3] - qx * dR[5] - qy * dR[6] + qx * dR[7]);
+    dqn[1] = 2 * (qy * dR[1] + qz * dR[2] + qy * dR[3] - 2 * qx * dR[4] - w * dR[5] + qz * dR[6] + w * dR[7] -
+                  2 * qx * dR[8]);
+    dqn[2] = 2 * (-2 * qy * dR[0] + qx * dR[1] + w * dR[2] + qx * dR[3] + qz * dR[5] - w * dR[6] + qz * dR[7] -
+                  2 * qy * dR[8]);
+    dqn[3] = 2 * (-2 * qz * dR[0] - w * dR[1] + qx * dR[2] + w * dR[3] - 2 * qz * dR[4] + qy * dR[5] +
+                  qx * dR[6] + qy * dR[7]);
+    // qn = q rsqrt(max(|q|^2, eps))
+    const S qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+    const S inv = p.q_inv;
+    const S dot = dqn[0] * q[0] + dqn[1] * q[1] + dqn[2] * q[2] + dqn[3] * q[3];
+    const S k3 = qq >= static_cast<S>(kQuatEps) ? inv * inv * inv * dot : S(0);
+    for (int i = 0; i < 4; ++i) dq[i] = inv * dqn[i] - k3 * q[i];
+  }
+}
+
 using ProjectResult = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
 
 template <typename S>
@@ -280,42 +480,7 @@ ProjectResult forward_impl(const at::Tensor& means, const at::Tensor& quats, con
   S* o_c = colors.data_ptr<S>();
   int32_t* o_r = radii.data_ptr<int32_t>();
   at::parallel_for(0, n, 1024, [&](int64_t g0, int64_t g1) {
-    Proj<S> p;
-    for (int64_t g = g0; g < g1; ++g) {
-      const S* m = mp + 3 * g;
-      project_one(k, m, qp + 4 * g, sp + 3 * g, p);
-      o_k[3 * g] = p.c_s / p.det_s;
-      o_k[3 * g + 1] = -p.b_s / p.det_s;
-      o_k[3 * g + 2] = p.a_s / p.det_s;
-      const S mx = k.fx * p.x / p.z + k.cx;
-      const S my = k.fy * p.y / p.z + k.cy;
-      o_m[2 * g] = mx;
-      o_m[2 * g + 1] = my;
-      o_d[g] = p.z;
-      // Radius from the largest eigenvalue, in double (no gradient).
-      const double a64 = p.a_s, c64 = p.c_s, det64 = p.det_s;
-      const double mid = 0.5 * (a64 + c64);
-      const double lam = mid + std::sqrt(std::max(mid * mid - det64, 0.0));
-      const double radius = std::ceil(3.0 * std::sqrt(std::max(lam, 0.0)));
-      const double mx64 = mx, my64 = my;
-      const bool on_screen = mx64 + radius > 0 && mx64 - radius < k.width && my64 + radius > 0 &&
-                             my64 - radius < k.height;
-      const bool visible = p.ok && on_screen && std::isfinite(radius);
-      o_r[g] = visible ? static_cast<int32_t>(std::min(std::max(radius, 1.0), kMaxRadius)) : 0;
-
-      // Colour along the view direction.
-      S dir[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
-      const S inv = rsqrt_clamped(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2], static_cast<S>(kDirEps));
-      S basis[16];
-      const int nb = sh_basis(static_cast<int>(sh_degree), dir[0] * inv, dir[1] * inv, dir[2] * inv, basis);
-      const S* coeffs = hp + g * n_coeffs * 3;
-      for (int ch = 0; ch < 3; ++ch) {
-        S v = 0;
-        for (int b = 0; b < nb; ++b) v += basis[b] * coeffs[3 * b + ch];
-        v += S(0.5);
-        o_c[3 * g + ch] = v >= 0 ? v : S(0);
-      }
-    }
+    forward_range(k, mp, qp, sp, hp, n_coeffs, sh_degree, o_m, o_k, o_d, o_c, o_r, g0, g1);
   });
   lap(gsgs_phase::kProjectForward);
   return {means2d, conics, depths, radii, colors};
@@ -359,155 +524,7 @@ ProjectGrads backward_impl(const at::Tensor& means, const at::Tensor& quats, con
   S* dh_p = d_sh.data_ptr<S>();
   const int deg = static_cast<int>(sh_degree);
   at::parallel_for(0, n, 512, [&](int64_t g0, int64_t g1) {
-    Proj<S> p;
-    for (int64_t g = g0; g < g1; ++g) {
-      S* dm = dm_p + 3 * g;
-      S* dq = dq_p + 4 * g;
-      S* ds = ds_p + 3 * g;
-      S* dh = dh_p + g * n_coeffs * 3;
-      std::fill(dh, dh + n_coeffs * 3, S(0));
-      if (rp[g] <= 0) {  // culled: the rasteriser ignores it, so nothing reaches its parameters
-        std::fill(dm, dm + 3, S(0));
-        std::fill(dq, dq + 4, S(0));
-        std::fill(ds, ds + 3, S(0));
-        continue;
-      }
-      const S* m = mp + 3 * g;
-      const S* q = qp + 4 * g;
-      const S* s = sp + 3 * g;
-      project_one(k, m, q, s, p);
-      const S x = p.x, y = p.y, z = p.z;
-
-      // --- colour: SH + 0.5, clamp_min(0) --------------------------------------------------
-      S dmean[3] = {0, 0, 0};
-      {
-        const S v[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
-        const S vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-        const S inv = rsqrt_clamped(vv, static_cast<S>(kDirEps));
-        const S d[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
-        S basis[16];
-        const int nb = sh_basis(deg, d[0], d[1], d[2], basis);
-        const S* coeffs = hp + g * n_coeffs * 3;
-        S dcol[3];
-        bool any = false;
-        for (int ch = 0; ch < 3; ++ch) {
-          S val = 0;
-          for (int b = 0; b < nb; ++b) val += basis[b] * coeffs[3 * b + ch];
-          val += S(0.5);
-          dcol[ch] = val >= 0 ? gc[3 * g + ch] : S(0);
-          any = any || dcol[ch] != 0;
-        }
-        for (int b = 0; b < nb; ++b)
-          for (int ch = 0; ch < 3; ++ch) dh[3 * b + ch] = basis[b] * dcol[ch];
-        if (any && deg > 0) {
-          S db[16][3];
-          sh_basis_grad(deg, d[0], d[1], d[2], db);
-          S ddir[3] = {0, 0, 0};
-          for (int b = 1; b < nb; ++b) {
-            const S w = coeffs[3 * b] * dcol[0] + coeffs[3 * b + 1] * dcol[1] + coeffs[3 * b + 2] * dcol[2];
-            for (int i = 0; i < 3; ++i) ddir[i] += w * db[b][i];
-          }
-          // d = v * rsqrt(max(|v|^2, eps)): dv = inv ddir - inv^3 (ddir . v) v where |v|^2 >= eps
-          const S dot = ddir[0] * v[0] + ddir[1] * v[1] + ddir[2] * v[2];
-          const S k3 = vv >= static_cast<S>(kDirEps) ? inv * inv * inv * dot : S(0);
-          for (int i = 0; i < 3; ++i) dmean[i] += inv * ddir[i] - k3 * v[i];
-        }
-      }
-
-      // --- camera-space point: means2d and depth ----------------------------------------------
-      S dx = 0, dy = 0, dz = gd[g];
-      {
-        const S gmx = gm[2 * g], gmy = gm[2 * g + 1];
-        dx += gmx * k.fx / z;
-        dy += gmy * k.fy / z;
-        dz -= (gmx * k.fx * x + gmy * k.fy * y) / (z * z);
-      }
-
-      // --- conic (c, -b, a) / det and the dilated determinant ------------------------------------
-      S dU[6] = {0, 0, 0, 0, 0, 0};
-      S dJW[6];
-      if (p.ok) {
-        const S* U = p.U;
-        const S k0 = gk[3 * g], k1 = gk[3 * g + 1], k2 = gk[3 * g + 2];
-        const S inv_det = S(1) / p.det;
-        const S ddet = -(k0 * p.c_s - k1 * p.b_s + k2 * p.a_s) * inv_det * inv_det;
-        const S lp = static_cast<S>(kLowPass);
-        const S da = k2 * inv_det + lp * ddet;
-        const S dc = k0 * inv_det + lp * ddet;
-        const S db = -k1 * inv_det;
-        const S m01 = U[0] * U[4] - U[1] * U[3];
-        const S m02 = U[0] * U[5] - U[2] * U[3];
-        const S m12 = U[1] * U[5] - U[2] * U[4];
-        const S d01 = 2 * m01 * ddet, d02 = 2 * m02 * ddet, d12 = 2 * m12 * ddet;
-        for (int i = 0; i < 3; ++i) {
-          dU[i] += 2 * da * U[i] + db * U[3 + i];
-          dU[3 + i] += 2 * dc * U[3 + i] + db * U[i];
-        }
-        dU[0] += d01 * U[4] + d02 * U[5];
-        dU[4] += d01 * U[0] - d12 * U[2];
-        dU[1] += -d01 * U[3] + d12 * U[5];
-        dU[3] += -d01 * U[1] - d02 * U[2];
-        dU[5] += d02 * U[0] + d12 * U[1];
-        dU[2] += -d02 * U[3] - d12 * U[4];
-      }
-      // U = JW M: dJW = dU M^T, dM = JW^T dU
-      S dM[9];
-      for (int r = 0; r < 2; ++r)
-        for (int c = 0; c < 3; ++c)
-          dJW[3 * r + c] = dU[3 * r] * p.M[3 * c] + dU[3 * r + 1] * p.M[3 * c + 1] + dU[3 * r + 2] * p.M[3 * c + 2];
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c) dM[3 * r + c] = p.JW[r] * dU[c] + p.JW[3 + r] * dU[3 + c];
-      // JW = J W: dJ = dJW W^T (only J00, J02, J11, J12 depend on the point)
-      const S* R = k.R;
-      S dJ[6];
-      for (int r = 0; r < 2; ++r)
-        for (int c = 0; c < 3; ++c)
-          dJ[3 * r + c] = dJW[3 * r] * R[3 * c] + dJW[3 * r + 1] * R[3 * c + 1] + dJW[3 * r + 2] * R[3 * c + 2];
-      {
-        const S cxz = std::min(std::max(p.txtz, -k.lim_left), k.lim_right);
-        const S cyz = std::min(std::max(p.tytz, -k.lim_top), k.lim_bottom);
-        const S z2 = z * z;
-        dz += -dJ[0] * k.fx / z2 + dJ[2] * k.fx * cxz / z2 - dJ[4] * k.fy / z2 + dJ[5] * k.fy * cyz / z2;
-        const S dtx = -dJ[2] * k.fx / z;
-        const S dty = -dJ[5] * k.fy / z;
-        if (p.txtz >= -k.lim_left && p.txtz <= k.lim_right) {
-          dx += dtx / z;
-          dz -= dtx * x / z2;
-        }
-        if (p.tytz >= -k.lim_top && p.tytz <= k.lim_bottom) {
-          dy += dty / z;
-          dz -= dty * y / z2;
-        }
-      }
-      // p_cam = R m + t
-      if (p.in_range) {
-        for (int i = 0; i < 3; ++i) dmean[i] += R[i] * dx + R[3 + i] * dy + R[6 + i] * dz;
-      }
-      for (int i = 0; i < 3; ++i) dm[i] = dmean[i];
-
-      // M = Rq diag(s)
-      S dR[9];
-      for (int c = 0; c < 3; ++c) {
-        ds[c] = dM[c] * p.Rq[c] + dM[3 + c] * p.Rq[3 + c] + dM[6 + c] * p.Rq[6 + c];
-        for (int r = 0; r < 3; ++r) dR[3 * r + c] = dM[3 * r + c] * s[c];
-      }
-      // Rq(w, x, y, z) of the normalised quaternion
-      const S w = p.qn[0], qx = p.qn[1], qy = p.qn[2], qz = p.qn[3];
-      S dqn[4];
-      dqn[0] = 2 * (-qz * dR[1] + qy * dR[2] + qz * dR[3] - qx * dR[5] - qy * dR[6] + qx * dR[7]);
-      dqn[1] = 2 * (qy * dR[1] + qz * dR[2] + qy * dR[3] - 2 * qx * dR[4] - w * dR[5] + qz * dR[6] + w * dR[7] -
-                    2 * qx * dR[8]);
-      dqn[2] = 2 * (-2 * qy * dR[0] + qx * dR[1] + w * dR[2] + qx * dR[3] + qz * dR[5] - w * dR[6] + qz * dR[7] -
-                    2 * qy * dR[8]);
-      dqn[3] = 2 * (-2 * qz * dR[0] - w * dR[1] + qx * dR[2] + w * dR[3] - 2 * qz * dR[4] + qy * dR[5] +
-                    qx * dR[6] + qy * dR[7]);
-      // qn = q rsqrt(max(|q|^2, eps))
-      const S qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-      const S inv = p.q_inv;
-      const S dot = dqn[0] * q[0] + dqn[1] * q[1] + dqn[2] * q[2] + dqn[3] * q[3];
-      const S k3 = qq >= static_cast<S>(kQuatEps) ? inv * inv * inv * dot : S(0);
-      for (int i = 0; i < 4; ++i) dq[i] = inv * dqn[i] - k3 * q[i];
-    }
+    backward_range(k, mp, qp, sp, hp, n_coeffs, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh_p, g0, g1);
   });
   lap(gsgs_phase::kProjectBackward);
   return {d_means, d_quats, d_scales, d_sh};

@@ -21,6 +21,7 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include "hot.h"
 #include "phase_timer.h"
 
 #include <algorithm>
@@ -42,13 +43,6 @@ constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 1e-4f;
 constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
 
-// Hot loops get an AVX2 clone next to the portable one (runtime dispatch through an ifunc), so a
-// cached build stays valid on any x86-64 machine: no -march=native.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define GSGS_HOT __attribute__((target_clones("avx2", "default")))
-#else
-#define GSGS_HOT
-#endif
 #define GSGS_INLINE inline __attribute__((always_inline))
 // Vector helpers are always inlined, so their 32-byte arguments never cross a call boundary.
 #pragma GCC diagnostic ignored "-Wpsabi"

@@ -18,6 +18,8 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include "hot.h"
+
 #include <algorithm>
 #include <cstdint>
 #include <tuple>
@@ -25,44 +27,48 @@
 
 namespace {
 
-// out[m][y][x] = sum_k w[k] in[m][y][x + k - r] (zero outside), for `maps` planes of H x W.
+// Rows [r0, r1) of out[m][y][x] = sum_k w[k] in[m][y][x + k - r] (zero outside).
 template <typename S>
-void blur_rows(const S* in, S* out, int maps, int H, int W, const S* w, int taps) {
+GSGS_HOT void blur_rows_range(const S* in, S* out, int W, const S* w, int taps, int64_t r0, int64_t r1) {
   const int r = taps / 2;
-  at::parallel_for(0, static_cast<int64_t>(maps) * H, 16, [&](int64_t r0, int64_t r1) {
-    for (int64_t row = r0; row < r1; ++row) {
-      const S* src = in + row * W;
-      S* dst = out + row * W;
-      for (int x = 0; x < W; ++x) dst[x] = 0;
-      for (int k = 0; k < taps; ++k) {
-        const int off = k - r;
-        const int x0 = std::max(0, -off), x1 = std::min(W, W - off);
-        const S wk = w[k];
-        for (int x = x0; x < x1; ++x) dst[x] += wk * src[x + off];
-      }
+  for (int64_t row = r0; row < r1; ++row) {
+    const S* src = in + row * W;
+    S* dst = out + row * W;
+    for (int x = 0; x < W; ++x) dst[x] = 0;
+    for (int k = 0; k < taps; ++k) {
+      const int off = k - r;
+      const int x0 = std::max(0, -off), x1 = std::min(W, W - off);
+      const S wk = w[k];
+      for (int x = x0; x < x1; ++x) dst[x] += wk * src[x + off];
     }
-  });
+  }
 }
 
-// out[m][y][x] = sum_k w[k] in[m][y + k - r][x] (zero outside).
+// Rows [r0, r1) (of maps x H) of out[m][y][x] = sum_k w[k] in[m][y + k - r][x] (zero outside).
 template <typename S>
-void blur_cols(const S* in, S* out, int maps, int H, int W, const S* w, int taps) {
+GSGS_HOT void blur_cols_range(const S* in, S* out, int H, int W, const S* w, int taps, int64_t r0, int64_t r1) {
   const int r = taps / 2;
-  at::parallel_for(0, static_cast<int64_t>(maps) * H, 16, [&](int64_t r0, int64_t r1) {
-    for (int64_t row = r0; row < r1; ++row) {
-      const int64_t m = row / H;
-      const int y = static_cast<int>(row % H);
-      S* dst = out + row * W;
-      for (int x = 0; x < W; ++x) dst[x] = 0;
-      for (int k = 0; k < taps; ++k) {
-        const int yy = y + k - r;
-        if (yy < 0 || yy >= H) continue;
-        const S* src = in + (m * H + yy) * W;
-        const S wk = w[k];
-        for (int x = 0; x < W; ++x) dst[x] += wk * src[x];
-      }
+  for (int64_t row = r0; row < r1; ++row) {
+    const int64_t m = row / H;
+    const int y = static_cast<int>(row % H);
+    S* dst = out + row * W;
+    for (int x = 0; x < W; ++x) dst[x] = 0;
+    for (int k = 0; k < taps; ++k) {
+      const int yy = y + k - r;
+      if (yy < 0 || yy >= H) continue;
+      const S* src = in + (m * H + yy) * W;
+      const S wk = w[k];
+      for (int x = 0; x < W; ++x) dst[x] += wk * src[x];
     }
-  });
+  }
+}
+
+// The 1D blur along x, then along y, of `maps` planes of H x W: in -> out, `tmp` in between.
+template <typename S>
+void blur(const S* in, S* tmp, S* out, int maps, int H, int W, const S* w, int taps) {
+  const int64_t rows = static_cast<int64_t>(maps) * H;
+  at::parallel_for(0, rows, 16, [&](int64_t r0, int64_t r1) { blur_rows_range(in, tmp, W, w, taps, r0, r1); });
+  at::parallel_for(0, rows, 16, [&](int64_t r0, int64_t r1) { blur_cols_range(tmp, out, H, W, w, taps, r0, r1); });
 }
 
 template <typename S>
@@ -91,8 +97,7 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
       }
     }
   });
-  blur_rows(maps.data(), tmp.data(), 5 * C, H, W, w, taps);
-  blur_cols(tmp.data(), maps.data(), 5 * C, H, W, w, taps);
+  blur(maps.data(), tmp.data(), maps.data(), 5 * C, H, W, w, taps);
 
   // Per pixel: the SSIM value (summed per row) and the three coefficient maps of the gradient.
   std::vector<S> coef(static_cast<size_t>(3 * C) * plane), coef_blur(coef.size());
@@ -124,8 +129,7 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
   for (double v : row_sum) total += v;
   const double count = static_cast<double>(plane) * C;
 
-  blur_rows(coef.data(), coef_blur.data(), 3 * C, H, W, w, taps);
-  blur_cols(coef_blur.data(), coef.data(), 3 * C, H, W, w, taps);
+  blur(coef.data(), coef_blur.data(), coef.data(), 3 * C, H, W, w, taps);
   at::Tensor grad = at::empty_like(img);
   S* g = grad.data_ptr<S>();
   const S inv_count = static_cast<S>(1.0 / count);
