@@ -80,14 +80,20 @@ GSGS_INLINE float hsum(vf v) {
   return s;
 }
 // Lane sums of eight vectors at once -> out[0..7]: three shuffle-and-add levels instead of 8 x 7 scalar adds.
+#if defined(__clang__)  // clang spells the two-vector shuffle with constant indices
+#define GSGS_SHUFFLE(x, y, i0, i1, i2, i3, i4, i5, i6, i7) __builtin_shufflevector(x, y, i0, i1, i2, i3, i4, i5, i6, i7)
+#else
+#define GSGS_SHUFFLE(x, y, i0, i1, i2, i3, i4, i5, i6, i7) __builtin_shuffle(x, y, vi{i0, i1, i2, i3, i4, i5, i6, i7})
+#endif
 GSGS_INLINE void hsum8(const vf* a, float* out) {
-  const vi even = {0, 8, 2, 10, 4, 12, 6, 14}, odd = {1, 9, 3, 11, 5, 13, 7, 15};
-  const vi lo2 = {0, 1, 8, 9, 4, 5, 12, 13}, hi2 = {2, 3, 10, 11, 6, 7, 14, 15};
-  const vi lo4 = {0, 1, 2, 3, 8, 9, 10, 11}, hi4 = {4, 5, 6, 7, 12, 13, 14, 15};
   vf p[4], q[2];
-  for (int i = 0; i < 4; ++i) p[i] = __builtin_shuffle(a[2 * i], a[2 * i + 1], even) + __builtin_shuffle(a[2 * i], a[2 * i + 1], odd);
-  for (int i = 0; i < 2; ++i) q[i] = __builtin_shuffle(p[2 * i], p[2 * i + 1], lo2) + __builtin_shuffle(p[2 * i], p[2 * i + 1], hi2);
-  const vf r = __builtin_shuffle(q[0], q[1], lo4) + __builtin_shuffle(q[0], q[1], hi4);
+  for (int i = 0; i < 4; ++i)
+    p[i] = GSGS_SHUFFLE(a[2 * i], a[2 * i + 1], 0, 8, 2, 10, 4, 12, 6, 14) +
+           GSGS_SHUFFLE(a[2 * i], a[2 * i + 1], 1, 9, 3, 11, 5, 13, 7, 15);
+  for (int i = 0; i < 2; ++i)
+    q[i] = GSGS_SHUFFLE(p[2 * i], p[2 * i + 1], 0, 1, 8, 9, 4, 5, 12, 13) +
+           GSGS_SHUFFLE(p[2 * i], p[2 * i + 1], 2, 3, 10, 11, 6, 7, 14, 15);
+  const vf r = GSGS_SHUFFLE(q[0], q[1], 0, 1, 2, 3, 8, 9, 10, 11) + GSGS_SHUFFLE(q[0], q[1], 4, 5, 6, 7, 12, 13, 14, 15);
   std::memcpy(out, &r, sizeof r);
 }
 
