@@ -22,6 +22,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "rasterizer": ("gsgs_engine.bench.rasterizer", "forward / backward time and memory of each rasteriser backend"),
+    "train-step": ("gsgs_engine.bench.train_step", "ms per training step on real scenes, old vs new CPU kernel, "
+                   "with a profile"),
     "accuracy": ("gsgs_engine.bench.accuracy", "what accuracy costs in time: a grid of settings, table and Pareto plot"),
     "sparse": ("gsgs_engine.bench.sparse", "the sparse-view protocols (LLFF 3 views, NeRF-synthetic 8 views): "
                "variants x scenes x seeds, mean +- std"),

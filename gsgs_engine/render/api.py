@@ -2,8 +2,10 @@
 
 Backends: "cuda" (gsplat, when importable and the inputs live on a CUDA device), "cpu"
 (the compiled C++ kernel in cpu_backend.py, once built) and "reference" (pure torch, the
-oracle). "auto" picks the first usable one in that order. Projection is always ours
-(project.py) for "cpu" and "reference", so those two differ only in the compositing kernel.
+oracle). "auto" picks the first usable one in that order. "cpu" projects and evaluates SH in
+the compiled kernel too (project_cpu.py, the same semantics as project.py); "cpu_legacy" is the
+earlier split: projection and SH in torch (project.py), only compositing compiled (kept for
+side-by-side benchmarks). "reference" uses project.py and the torch compositor.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from gsgs_engine.render.project import project_gaussians
 from gsgs_engine.render.reference import rasterize_reference
 from gsgs_engine.render.sh import num_sh_bases
 
-BACKENDS = ("auto", "reference", "cpu", "cuda")
+BACKENDS = ("auto", "reference", "cpu", "cpu_legacy", "cuda")
 _warned_cpu_fallback = False
 
 
@@ -64,7 +66,8 @@ def cuda_status(device: torch.device | None = None) -> tuple[bool, str]:
 
 def available_backends() -> dict[str, tuple[bool, str]]:
     """Concrete backend name -> (usable on this machine, reason when not)."""
-    return {"reference": (True, ""), "cpu": cpu_status(), "cuda": cuda_status()}
+    cpu = cpu_status()
+    return {"reference": (True, ""), "cpu": cpu, "cpu_legacy": cpu, "cuda": cuda_status()}
 
 
 def _warn_cpu_fallback(reason: str) -> None:
@@ -89,14 +92,14 @@ def select_backend(backend: str, device: torch.device, dtype: torch.dtype | None
         if dtype == torch.float64:
             raise GsgsError("rasteriser backend 'cuda' (gsplat) supports float32 only; use backend='reference' for float64")
         return backend
-    if backend == "cpu":
+    if backend in ("cpu", "cpu_legacy"):
         if device.type != "cpu":
-            raise GsgsError(f"rasteriser backend 'cpu' needs CPU tensors (got {device}); use backend='auto'")
+            raise GsgsError(f"rasteriser backend {backend!r} needs CPU tensors (got {device}); use backend='auto'")
         if dtype == torch.float64:
-            raise GsgsError("rasteriser backend 'cpu' (compiled kernel) is float32 only; use backend='reference' for float64")
+            raise GsgsError(f"rasteriser backend {backend!r} (compiled kernel) is float32 only; use backend='reference' for float64")
         ok, reason = cpu_status()
         if not ok:
-            raise GsgsError(f"rasteriser backend 'cpu' unavailable: {reason}; run `gsgs build-ext` or use backend='reference'")
+            raise GsgsError(f"rasteriser backend {backend!r} unavailable: {reason}; run `gsgs build-ext` or use backend='reference'")
         return backend
     # auto
     if device.type == "cuda":
@@ -119,7 +122,7 @@ def rasterize(means2d, conics, colors, opacities, depths, radii, width: int, hei
     if backend == "cuda":
         raise GsgsError("rasterize(): the gsplat backend renders whole scenes; call render(..., backend='cuda')")
     chosen = select_backend(backend, means2d.device, means2d.dtype)
-    if chosen == "cpu":
+    if chosen in ("cpu", "cpu_legacy"):
         from gsgs_engine.render import cpu_backend
         return cpu_backend.rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width, height, background)
     return rasterize_reference(means2d, conics, colors, opacities, depths, radii, width, height, background)
@@ -173,7 +176,11 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
         return RenderOutput(color=color, depth=depth, alpha=alpha, radii=radii, visible=radii > 0,
                             means2d=means2d, backend=chosen)
 
-    proj = project_gaussians(means, quats, scales, camera, sh=sh, sh_degree=sh_degree, near=near, far=far)
+    if chosen == "cpu":
+        from gsgs_engine.render.project_cpu import project_gaussians_cpu
+        proj = project_gaussians_cpu(means, quats, scales, camera, sh, sh_degree=sh_degree, near=near, far=far)
+    else:
+        proj = project_gaussians(means, quats, scales, camera, sh=sh, sh_degree=sh_degree, near=near, far=far)
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()

@@ -27,9 +27,11 @@ def dssim_loss(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | 
     """D-SSIM = 1 - SSIM (3DGS's convention; images [H, W, 3] in [0, 1]); with `mask` (H, W) the
     SSIM map is averaged over the pixels it keeps."""
     from gsgs_engine.metrics import ssim, ssim_map
+    from gsgs_engine.train.fused_ssim import ssim_mean
 
     if mask is None:
-        return 1.0 - ssim(render, target)
+        fused = ssim_mean(render, target)  # compiled CPU path; None elsewhere
+        return 1.0 - (ssim(render, target) if fused is None else fused)
     return 1.0 - _masked_mean(ssim_map(render, target)[0].mean(dim=0), mask)
 
 

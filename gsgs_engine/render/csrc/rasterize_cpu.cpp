@@ -21,6 +21,9 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include "hot.h"
+#include "phase_timer.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -40,13 +43,6 @@ constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 1e-4f;
 constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
 
-// Hot loops get an AVX2 clone next to the portable one (runtime dispatch through an ifunc), so a
-// cached build stays valid on any x86-64 machine: no -march=native.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define GSGS_HOT __attribute__((target_clones("avx2", "default")))
-#else
-#define GSGS_HOT
-#endif
 #define GSGS_INLINE inline __attribute__((always_inline))
 // Vector helpers are always inlined, so their 32-byte arguments never cross a call boundary.
 #pragma GCC diagnostic ignored "-Wpsabi"
@@ -82,6 +78,23 @@ GSGS_INLINE float hsum(vf v) {
   float s = 0.0f;
   for (int i = 0; i < kLanes; ++i) s += v[i];
   return s;
+}
+// Lane sums of eight vectors at once -> out[0..7]: three shuffle-and-add levels instead of 8 x 7 scalar adds.
+#if defined(__clang__)  // clang spells the two-vector shuffle with constant indices
+#define GSGS_SHUFFLE(x, y, i0, i1, i2, i3, i4, i5, i6, i7) __builtin_shufflevector(x, y, i0, i1, i2, i3, i4, i5, i6, i7)
+#else
+#define GSGS_SHUFFLE(x, y, i0, i1, i2, i3, i4, i5, i6, i7) __builtin_shuffle(x, y, vi{i0, i1, i2, i3, i4, i5, i6, i7})
+#endif
+GSGS_INLINE void hsum8(const vf* a, float* out) {
+  vf p[4], q[2];
+  for (int i = 0; i < 4; ++i)
+    p[i] = GSGS_SHUFFLE(a[2 * i], a[2 * i + 1], 0, 8, 2, 10, 4, 12, 6, 14) +
+           GSGS_SHUFFLE(a[2 * i], a[2 * i + 1], 1, 9, 3, 11, 5, 13, 7, 15);
+  for (int i = 0; i < 2; ++i)
+    q[i] = GSGS_SHUFFLE(p[2 * i], p[2 * i + 1], 0, 1, 8, 9, 4, 5, 12, 13) +
+           GSGS_SHUFFLE(p[2 * i], p[2 * i + 1], 2, 3, 10, 11, 6, 7, 14, 15);
+  const vf r = GSGS_SHUFFLE(q[0], q[1], 0, 1, 2, 3, 8, 9, 10, 11) + GSGS_SHUFFLE(q[0], q[1], 4, 5, 6, 7, 12, 13, 14, 15);
+  std::memcpy(out, &r, sizeof r);
 }
 
 // exp(x) for the alpha test, x clamped to [-87, 0] (NaN -> -87): Cephes' expf polynomial with
@@ -312,7 +325,8 @@ GSGS_HOT void forward_tile(const Splat* splats, const int32_t* ranks, int count,
 GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int32_t* slots, int count,
                             int px0, int py0, int width, int height, const float* background,
                             const float* final_T, const int32_t* last_in, const float* grad_color,
-                            const float* grad_depth, const float* grad_alpha, float* entry_grad) {
+                            const float* grad_depth, const float* grad_alpha, bool with_depth,
+                            float* entry_grad) {
   vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
   vi last[kVecs];
   const int rows = std::min(kTile, height - py0);
@@ -344,13 +358,18 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
   vf px[kVecPerRow];
   pixel_centres(px0, px);
 
-  for (int j = count - 1; j >= 0; --j) {
+  // Entries behind every pixel's last contributor (transmittance spent) get a zero record, no work.
+  for (int j = count - 1; j >= max_last; --j) {
+    std::memset(entry_grad + static_cast<int64_t>(slots[j]) * kGradFields, 0, kGradFields * sizeof(float));
+  }
+  for (int j = std::min(count, max_last) - 1; j >= 0; --j) {
     float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
     const Splat s = splats[ranks[j]];
     int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
-    if (j < max_last) reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
     vf acc[kGradFields];
     for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
+    bool touched = false;
     const vi position = splat_i(j);
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
@@ -365,13 +384,14 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
         const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
         if (!any(valid)) continue;
+        touched = true;
         const vf one_minus = 1.0f - alpha;  // >= 0.01
         const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
         const vf T_before = T[v] * inv_one_minus;
         const vf w = select(valid, alpha * T_before, splat(0.0f));
-        const vf dL_dalpha = T_before * (gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]) +
-                                         gz[v] * (s.depth - Sz[v])) +
-                             K[v] * inv_one_minus;
+        vf dot = gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]);
+        if (with_depth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
+        const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
         const vf dL_dpower = dL_doG * oG;
@@ -384,15 +404,21 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
         acc[6] += gg[v] * w;
         acc[7] += gb[v] * w;
         acc[8] += dL_doG * G;
-        acc[9] += gz[v] * w;
+        if (with_depth) acc[9] += gz[v] * w;
         Sr[v] = select(valid, alpha * s.r + one_minus * Sr[v], Sr[v]);
         Sg[v] = select(valid, alpha * s.g + one_minus * Sg[v], Sg[v]);
         Sb[v] = select(valid, alpha * s.b + one_minus * Sb[v], Sb[v]);
-        Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
+        if (with_depth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
         T[v] = select(valid, T_before, T[v]);
       }
     }
-    for (int f = 0; f < kGradFields; ++f) record[f] = hsum(acc[f]);
+    if (touched) {
+      hsum8(acc, record);
+      record[8] = hsum(acc[8]);
+      record[9] = hsum(acc[9]);
+    } else {
+      std::memset(record, 0, kGradFields * sizeof(float));
+    }
   }
 }
 
@@ -552,7 +578,9 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
   check_inputs(means2d, conics, colors, opacities, depths, radii, width, height, background);
   const int W = static_cast<int>(width), H = static_cast<int>(height);
   const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
+  gsgs_phase::Lap lap;
   Binning b = bin_gaussians(means2d, conics, colors, opacities, depths, radii, tiles_x, tiles_y);
+  lap(gsgs_phase::kBinning);
 
   at::Tensor color = at::empty({H, W, 3}, at::kFloat);
   at::Tensor depth = at::empty({H, W}, at::kFloat);
@@ -573,6 +601,7 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
                  bg, color_p, depth_p, alpha_p, T_p, last_p);
   });
 
+  lap(gsgs_phase::kRasterForward);
   const int64_t n_vis = static_cast<int64_t>(b.order.size());
   at::Tensor order = at::empty({n_vis}, at::kInt);
   at::Tensor slot_offset = at::empty({n_vis + 1}, at::kInt);
@@ -606,6 +635,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   TORCH_CHECK(tile_offsets.numel() == n_tiles + 1 && slot_offset.numel() == n_vis + 1,
               "rasterize_cpu backward: saved state does not match the image size");
 
+  gsgs_phase::Lap lap;
   // Packed records again (cheaper to rebuild than to keep alive between the passes).
   const float* m = means2d.data_ptr<float>();
   const float* cn = conics.data_ptr<float>();
@@ -628,19 +658,30 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const int32_t* ranks = tile_ranks.data_ptr<int32_t>();
   const int32_t* slots = entry_slots.data_ptr<int32_t>();
   const int64_t n_entries = tile_ranks.numel();
-  std::vector<float> entry_grad(static_cast<size_t>(n_entries) * kGradFields);
+  // Every record is written exactly once by its tile, so the buffer needs no zeroing; it is kept per
+  // calling thread between calls (no page faults for a fresh ~40 bytes per entry every step).
+  static thread_local std::vector<float> entry_grad;
+  const size_t need = static_cast<size_t>(n_entries) * kGradFields;
+  if (entry_grad.size() < need || entry_grad.size() > 4 * need + (size_t{1} << 20)) {
+    std::vector<float>().swap(entry_grad);
+    entry_grad.resize(need);
+  }
   const float* bg = background.data_ptr<float>();
   const float* T_p = final_T.data_ptr<float>();
   const int32_t* last_p = last.data_ptr<int32_t>();
   const float* gc = grad_color.data_ptr<float>();
   const float* gd = grad_depth.data_ptr<float>();
   const float* ga = grad_alpha.data_ptr<float>();
+  // Training losses rarely use depth: without a depth gradient its terms are skipped in the tile loop.
+  const bool with_depth = std::any_of(gd, gd + static_cast<int64_t>(H) * W, [](float g) { return g != 0.0f; });
+  lap(gsgs_phase::kBackwardPrep);
   for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
     backward_tile(splats.data(), ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
-                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, entry_grad.data());
+                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, entry_grad.data());
   });
 
+  lap(gsgs_phase::kRasterBackward);
   at::Tensor g_means = at::zeros({n, 2}, at::kFloat);
   at::Tensor g_conics = at::zeros({n, 3}, at::kFloat);
   at::Tensor g_colors = at::zeros({n, 3}, at::kFloat);
@@ -673,12 +714,25 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
       gz[g] = sum[9];
     }
   });
+  lap(gsgs_phase::kBackwardReduce);
   return {g_means, g_conics, g_colors, g_opac, g_depth};
 }
 
 }  // namespace
 
+at::Tensor phase_seconds() {
+  at::Tensor out = at::empty({gsgs_phase::kCount}, at::kDouble);
+  for (int i = 0; i < gsgs_phase::kCount; ++i) out.data_ptr<double>()[i] = gsgs_phase::g_ns[i].load() * 1e-9;
+  return out;
+}
+
+void reset_phase_seconds() {
+  for (auto& c : gsgs_phase::g_ns) c.store(0);
+}
+
 TORCH_LIBRARY(gsgs_raster_cpu, m) {
+  m.def("phase_seconds() -> Tensor", &phase_seconds);
+  m.def("reset_phase_seconds() -> ()", &reset_phase_seconds);
   m.def(
       "forward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
       "int width, int height, Tensor background) -> (Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, "
