@@ -29,9 +29,9 @@ from gsgs_engine.train.nan_guard import check_skipped, nonfinite_cause
 from gsgs_engine.train.technique import StepContext, Technique
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
-# Measured on lego_200 (8 views, 200 px, cpu backend, SfM init, OMP_WAIT_POLICY=PASSIVE) on the
-# shared 2-core dev machine: 1000 steps took 187 s of training (3.5 min wall with SfM and
-# evaluation) and reached test PSNR 22.32 / SSIM 0.847. Well inside the 10-minute budget.
+# Measured on lego_200 (8 views, 200 px, cpu backend, SfM init, effect plan) on the shared 2-core
+# dev machine with the compiled projection / SSIM (issue 17): 1000 steps took 40 s of training and
+# reached test PSNR 22.62-22.68 / SSIM 0.858 (seeds 0, 1). Well inside the 10-minute budget.
 DEFAULT_ITERS = 1000
 CHECKPOINT_FORMAT = 2  # 2: safetensors + JSON (1 was a pickle, never loaded)
 
