@@ -157,6 +157,24 @@ def test_dense_vs_sparse_views():
     assert plan(dense, replace(AUTO, prior="warp"))["pseudo_views"].enabled  # an explicit request wins
 
 
+def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
+    from gsgs_engine.effect_plan import AUTO_TECHNIQUES
+
+    few = plan(make_scene(n_train=4))
+    assert few["techniques"].enabled and few["techniques"].value == list(AUTO_TECHNIQUES)
+    assert few["techniques"].source == "auto" and "sparse" in few["techniques"].reason
+    tc, pc = apply_effect_plan(few, TrainConfig(), AUTO)
+    assert pc.techniques == list(AUTO_TECHNIQUES)
+    assert plan(make_scene(n_train=24))["techniques"].enabled is False  # dense: plain optimisation
+    assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
+    assert plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]))["techniques"].enabled is False  # measured on static scenes only
+    named = plan(make_scene(n_train=24), replace(AUTO, prior="none", techniques=["dropout"]))["techniques"]
+    assert named.enabled and named.value == ["dropout"] and named.source == "user"
+    off = plan(make_scene(n_train=4), replace(AUTO, techniques=[]))["techniques"]  # --techniques none
+    assert off.enabled is False and off.source == "user"
+    assert "techniques" in few.format()
+
+
 def test_generator_is_diffusion_only_with_weights(tmp_path):
     scene = make_scene(n_train=4)
     with pytest.raises(GsgsError, match="--diffusion-model"):

@@ -36,7 +36,9 @@ class PriorConfig:
     device: str = "auto"
     # weights-free sparse-view techniques by name, e.g. ["dropout", "opacity_decay"]
     # (gsgs_engine.train.techniques.catalogue checks them and adds them to the trainer)
-    techniques: list = field(default_factory=list)
+    # None: the effect plan chooses (under --prior auto, the measured weights-free recipe when the views are
+    # sparse); a list (possibly empty, e.g. from --techniques none) is used as given
+    techniques: list | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -119,10 +121,11 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--diffusion-resolution", type=int, default=512)
     g.add_argument("--lora-steps", type=int, default=50)
     g.add_argument("--device", default="auto", help="device of the diffusion prior: auto | cpu | cuda")
-    parser.add_argument("--techniques", default="",
+    parser.add_argument("--techniques", default=None,
                         help="weights-free sparse-view techniques, comma-separated: count_control, dropout, "
-                             "binocular, opacity_decay (options as NAME:KEY=VALUE); see "
-                             "gsgs_engine.train.techniques.catalogue")
+                             "binocular, opacity_decay, coregularisation (options as NAME:KEY=VALUE), or none; "
+                             "default: chosen by the effect plan (--prior auto on sparse views: the measured "
+                             "recipe); see gsgs_engine.train.techniques.catalogue")
 
 
 def prior_config_from_args(args) -> PriorConfig:
@@ -131,7 +134,7 @@ def prior_config_from_args(args) -> PriorConfig:
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
                        jitter=args.pseudo_jitter, reach=args.pseudo_reach, diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
-                       techniques=[t for t in (getattr(args, "techniques", "") or "").split(",") if t.strip()],
+                       techniques=techniques_list(getattr(args, "techniques", None), "--techniques"),
                        diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,
                                   "resolution": args.diffusion_resolution, "lora_steps": args.lora_steps})
 
@@ -148,10 +151,16 @@ def prior_config_from_settings(settings: dict) -> PriorConfig:
     unknown = sorted(set(d) - known)
     if unknown:
         raise GsgsError(f"job.json: unknown prior settings {unknown}; known: {sorted(known)}")
-    techniques = settings.get("techniques") or []
-    if isinstance(techniques, str):
-        techniques = [t for t in techniques.split(",") if t.strip()]
-    elif not isinstance(techniques, list):
-        raise GsgsError(f"job.json: settings.techniques must be a list of names or comma-separated text "
-                        f"(got {type(techniques).__name__})")
+    techniques = techniques_list(settings.get("techniques"), "job.json: settings.techniques")
     return PriorConfig(prior=settings.get("prior", "none") or "none", techniques=techniques, **d)
+
+
+def techniques_list(value, where: str) -> list | None:
+    """None (not given: the effect plan chooses) or the named techniques ("none" / [] : none at all)."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return [t.strip() for t in value.split(",") if t.strip() and t.strip() != "none"]
+    if isinstance(value, list) and all(isinstance(t, str) for t in value):
+        return [t.strip() for t in value if t.strip() and t.strip() != "none"]
+    raise GsgsError(f"{where} must be a list of technique names or comma-separated text (got {value!r})")
