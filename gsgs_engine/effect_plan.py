@@ -47,6 +47,11 @@ MIN_DEPTH_POINTS = 50
 # one seed): llff_flower 3 views at half resolution 16.84 -> 18.27 dB in a third of the time
 # (the budget keeps 14k Gaussians instead of 144k), lego_200 8 views 22.83 -> 23.16 dB at 2.1x.
 AUTO_TECHNIQUES = ("count_control", "dropout", "binocular", "opacity_decay")
+# The weights-free warp-inpaint generator under --prior auto: on forward-facing rigs only. Its ring of
+# pseudo views and its filling target content beside the rig; on orbits its targets, warped across
+# 25-33 deg camera gaps, are worse than the render (1000 steps, CPU, one seed; with the techniques on):
+WARP_MEASURED = ("warp-inpaint measured with the techniques: llff_flower (forward-facing, 3 views, half "
+                 "resolution) 18.27 -> 19.71 dB, lego_200 (orbit, 8 views) 23.16 -> 21.83 dB")
 SPARSE_DEPTH_MEASURED = ("measured to lower test PSNR (1000 steps, CPU: lego_200 8 views -1.57 dB depth-only, "
                          "and a further -1.01 dB on top of warp-inpaint; llff_flower 3 views -0.15 dB depth-only)")
 
@@ -392,6 +397,10 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
     elif requested in ("warp", "diffusion"):
         effects["pseudo_views"] = Effect("pseudo_views", True, prior_config.num_pseudo,
                                          f"--prior {requested} asks for them", "user", cov)
+    elif sparse and cov.get("focus") == "optical axes intersection" and not diffusion_configured(prior_config):
+        effects["pseudo_views"] = Effect("pseudo_views", False, 0, "sparse orbiting rig (" + sparse_why + ") and no "
+                                         "diffusion weights: " + WARP_MEASURED + "; --prior warp forces them",
+                                         measured=cov)
     else:
         effects["pseudo_views"] = Effect("pseudo_views", sparse, prior_config.num_pseudo if sparse else 0,
                                          ("sparse: " if sparse else "dense: ") + sparse_why, measured=cov)

@@ -22,9 +22,10 @@ from gsgs_engine.train.trainer import TrainConfig
 SIZE = 16
 
 
-def look_at(eye, size=SIZE, name="") -> Camera:
+def look_at(eye, size=SIZE, name="", direction=None) -> Camera:
     eye = np.asarray(eye, dtype=np.float64)
-    f = -eye / np.linalg.norm(eye)
+    f = -eye if direction is None else np.asarray(direction, dtype=np.float64)
+    f = f / np.linalg.norm(f)
     r = np.cross(f, [0.0, 0.0, 1.0])
     r /= np.linalg.norm(r)
     R = np.stack([r, np.cross(f, r), f])
@@ -38,8 +39,14 @@ def ring(n: int, span_deg: float = 360.0, offset: float = 0.0, prefix="v") -> li
             for i in range(n)]
 
 
+def row(n: int, offset: float = 0.0, prefix="v") -> list[Camera]:
+    """A forward-facing rig: cameras side by side, parallel optical axes, all seeing the origin."""
+    return [look_at((-0.6 + 1.2 * (i + offset) / max(n - 1, 1), -4.0, 1.0), name=f"{prefix}{i}",
+                    direction=(0.0, 1.0, -0.25)) for i in range(n)]
+
+
 @functools.lru_cache(maxsize=None)
-def _renders(n_train: int, span_deg: float, n_test: int):
+def _renders(n_train: int, span_deg: float, n_test: int, forward: bool = False):
     """Cameras, RGBA renders of a dozen Gaussians, and sparse points (cached: tests reuse scenes)."""
     from gsgs_engine.render import render
 
@@ -48,7 +55,8 @@ def _renders(n_train: int, span_deg: float, n_test: int):
     gt = ((torch.rand(n, 3, generator=g) - 0.5), torch.randn(n, 4, generator=g),
           torch.rand(n, 3, generator=g) * 0.2 + 0.1, torch.full((n,), 0.9),
           (torch.rand(n, 1, 3, generator=g) - 0.5) / 0.28)
-    cams = ring(n_train, span_deg) + ring(n_test, offset=0.3, prefix="t")
+    cams = (row(n_train) + row(n_test, offset=0.5, prefix="t") if forward else
+            ring(n_train, span_deg) + ring(n_test, offset=0.3, prefix="t"))
     images = []
     for cam in cams:
         with torch.no_grad():
@@ -58,8 +66,8 @@ def _renders(n_train: int, span_deg: float, n_test: int):
     return cams, images, pts.astype(np.float32)
 
 
-def make_scene(n_train=4, span_deg=360.0, rgba=False, times=None, n_test=1) -> Scene:
-    cams, images, pts = _renders(n_train, span_deg, n_test)
+def make_scene(n_train=4, span_deg=360.0, rgba=False, times=None, n_test=1, forward=False) -> Scene:
+    cams, images, pts = _renders(n_train, span_deg, n_test, forward)
     if times is not None:
         cams = [replace(c, time=t) for c, t in zip(cams, times + [times[0]] * n_test)]
     views = [View(camera=cam, image_path=None, loader=lambda img=img if rgba else img[..., :3]: img)
@@ -117,7 +125,7 @@ def test_rgba_vs_rgb_background():
 
 
 def test_with_and_without_a_depth_source(tmp_path):
-    scene = make_scene()
+    scene = make_scene(forward=True)
     scene.points = None
     with_points = plan(scene, replace(AUTO, depth_source="sparse"), tri=fake_triangulation(200))
     assert with_points["depth"].value == "sparse" and with_points["depth"].measured["sfm_points"] == 200
@@ -147,11 +155,14 @@ def test_dense_vs_sparse_views():
     assert "dense" in p["pseudo_views"].reason
     tc, pc = apply_effect_plan(p, TrainConfig(), AUTO)
     assert pc.prior in ("depth", "none")
-    few = plan(make_scene(n_train=4))
+    few = plan(make_scene(n_train=4, forward=True))
     assert few["pseudo_views"].value == 2 and few["generator"].value == "warp-inpaint" and "4 views" in \
         few["pseudo_views"].reason
+    orbit = plan(make_scene(n_train=4))  # a sparse orbit: warp-inpaint measured to hurt there, so no pseudo views
+    assert orbit["pseudo_views"].enabled is False and "orbiting" in orbit["pseudo_views"].reason
+    assert orbit["generator"].enabled is False and orbit["techniques"].enabled
     holes = plan(make_scene(n_train=14))  # enough views, but 25.7 deg apart
-    assert holes["pseudo_views"].enabled and "gap" in holes["pseudo_views"].reason
+    assert "gap" in holes["pseudo_views"].reason and holes["techniques"].enabled
     assert plan(dense, overrides={"pseudo_views": 3})["pseudo_views"].value == 3
     assert plan(make_scene(n_train=4), overrides={"pseudo_views": "off"})["pseudo_views"].enabled is False
     assert plan(dense, replace(AUTO, prior="warp"))["pseudo_views"].enabled  # an explicit request wins
@@ -176,7 +187,7 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
 
 
 def test_generator_is_diffusion_only_with_weights(tmp_path):
-    scene = make_scene(n_train=4)
+    scene = make_scene(n_train=4, forward=True)
     with pytest.raises(GsgsError, match="--diffusion-model"):
         plan(scene, overrides={"generator": "diffusion"})
     (tmp_path / "sd").mkdir()
@@ -306,7 +317,7 @@ def test_disabled_effects_are_never_called(tmp_path, monkeypatch):
 
 def test_enabled_effects_are_called(tmp_path, monkeypatch):
     calls, degrees = _install_counters(monkeypatch)
-    scene = make_scene(n_train=4)  # sparse: pseudo views with the warp-inpaint generator, sparse depth
+    scene = make_scene(n_train=4, forward=True)  # sparse forward-facing: warp-inpaint pseudo views, sparse depth
     p, metrics = _train(scene, tmp_path, {"sh_degree": 1, "depth": "on"})
     assert p["generator"].value == "warp-inpaint" and p["depth"].value == "sparse"
     assert calls["generator"] == 2 and calls["pseudo_poses"] == 1 and calls["depth_source"] >= 4 + 2
