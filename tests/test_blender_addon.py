@@ -142,12 +142,12 @@ def test_known_poses_pseudo_path_and_train_job(addon, tmp_path):
         assert Path(view.image_path).resolve() == Path(image)
     settings = job.spec["settings"]
     # The panel starts from the balanced preset: the engine's default schedule, not the paper's 10,000 steps.
-    assert settings["preset"] == "balanced" and settings["iters"] == 1000 and settings["prior"] == "none"
-    scene.gsgs.generator = "auto"  # editing a field makes the preset Custom
-    scene.gsgs.rounds = 3
+    assert settings["preset"] == "balanced" and settings["iters"] == 1000 and settings["prior"] == "auto"
+    scene.gsgs.generator = "warp"  # editing a field makes the preset Custom
+    scene.gsgs.rounds = 2
     assert scene.gsgs.preset == "custom"
     settings = train_spec(bpy.context)["settings"]
-    assert settings["prior"] == "auto" and settings["prior_settings"]["rounds"] == 3 and settings["iters"] == 1000
+    assert settings["prior"] == "warp" and settings["prior_settings"]["rounds"] == 2 and settings["iters"] == 1000
 
 
 def test_slerp_orientation_stays_between_neighbours(addon):
@@ -489,7 +489,7 @@ def test_validate_operator_writes_the_job_and_shows_metrics(addon, fake_engine):
     root = Path(bpy.path.abspath(scene.gsgs.validate_job))
     spec = json.loads((root / "seen_spec.json").read_text())
     assert spec["task"] == "validate" and spec["data"]["train_views"] == 8
-    assert spec["settings"]["iters"] == 123 and spec["settings"]["prior"] == "none"  # the balanced preset's
+    assert spec["settings"]["iters"] == 123 and spec["settings"]["prior"] == "auto"  # the balanced preset's
     assert panels._metrics(scene.gsgs.validate_job) == "PSNR 21.50  SSIM 0.800"  # LPIPS null: not shown
 
 

@@ -102,7 +102,9 @@ def test_train_panel_states_the_time_and_unused_path_poses_before_starting(addon
     labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
     estimate = [t for t in labels if t.startswith("Estimated: ~")]
     assert estimate and "1000 steps on 200x200 px" in estimate[0], labels  # the balanced preset on lego
-    assert any("path poses are unused" in t for t in labels)  # the preset has no generator
+    scene.gsgs.generator = "none"
+    labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
+    assert any("path poses are unused" in t for t in labels)  # no generator: the path is not used
     scene.gsgs.generator = "warp"
     labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
     assert not any("path poses are unused" in t for t in labels)
