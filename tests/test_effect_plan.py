@@ -184,6 +184,15 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     off = plan(make_scene(n_train=4), replace(AUTO, techniques=[]))["techniques"]  # --techniques none
     assert off.enabled is False and off.source == "user"
     assert "techniques" in few.format()
+    # the recipe starts from the dense MVS initialisation, unless an init was chosen
+    assert few["init"].value == "points" and few["init"].source == "user"  # plan() chooses init="points"
+    chosen = plan_effects(make_scene(n_train=4), TrainConfig(init="random"), AUTO, SH1, log=lambda m: None)
+    assert chosen["init"].value == "random" and chosen["init"].source == "user"
+    auto_init = plan_effects(make_scene(n_train=4), TrainConfig(), AUTO, SH1, log=lambda m: None)
+    assert auto_init["init"].value == "mvs" and auto_init["init"].source == "auto"
+    assert apply_effect_plan(auto_init, TrainConfig(), AUTO)[0].init == "mvs"
+    assert plan_effects(make_scene(n_train=4), TrainConfig(), replace(AUTO, prior="none"), SH1,
+                        log=lambda m: None)["init"].value == "auto"
 
 
 def test_generator_is_diffusion_only_with_weights(tmp_path):
