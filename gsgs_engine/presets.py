@@ -15,11 +15,11 @@ Chosen from the measured fronts (docs/accuracy_*.md, 2026-11-22):
     A preset applies to any capture, so none turns the prior on (it would cost lego-like orbits
     0.8 dB); `--prior auto` stays one flag away.
 So: fast = 300 iterations, balanced = 1000 (the default schedule), best = 3000; SH from the effect plan.
-Issue 14 (docs/sparse_techniques.md, 1000 steps, CPU, one seed) then measured `--prior auto` with the
-weights-free techniques (count_control, dropout, binocular, opacity_decay; warp-inpaint pseudo views
-only on forward-facing rigs): llff_flower 3 views at half resolution 16.84 -> 19.71 dB in less time
-(137 s vs 306 s), lego_200 8 views 22.83 -> 23.16 dB at 2.1x. So balanced and best use `prior auto`
-(dense captures get none of it: the plan sees they are not sparse); fast stays plain 3DGS.
+Issue 14 (docs/sparse_techniques.md, 1000 steps, CPU, one seed) then measured `--prior auto` as it
+now runs on sparse static views (dense MVS init, the techniques count_control, dropout, binocular,
+opacity_decay, and warp-inpaint pseudo views on forward-facing rigs only): llff_flower 3 views at
+half resolution 16.84 -> 20.46 dB (251 s vs 306 s), lego_200 8 views 22.83 -> 25.36 dB (88 s vs 57 s).
+So balanced and best use `prior auto` (dense captures get none of it: the plan sees they are not sparse); fast stays plain 3DGS.
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,
