@@ -28,7 +28,11 @@ SOURCES = ("rasterize_cpu.cpp", "project_cpu.cpp", "ssim_cpu.cpp")
 # Plain -O3: no -ffast-math (NaN/inf handling and the exact 3DGS thresholds must hold) and no
 # -march=native (a cached build must run on any x86-64; the kernel carries its own AVX2 clone).
 # -ffp-contract=off keeps forward and backward evaluating alpha bit-identically.
-CFLAGS = ("-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math")
+CFLAGS = ("-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math", "-fopenmp")
+# at::parallel_for is header-inline (`#pragma omp parallel` in ATen/ParallelOpenMP.h): without
+# -fopenmp it compiles to a serial loop and a second thread buys nothing. The library links the
+# soname libgomp.so.1, which resolves to the copy torch has already loaded (one OpenMP runtime).
+LDFLAGS = ("-fopenmp",)
 _OP_NAMESPACE = "gsgs_raster_cpu"
 _READY_MARKER = "gsgs_build_ok"
 _STALE_LOCK_S = 20 * 60
@@ -50,7 +54,7 @@ def _source_hash() -> str:
     for header in sorted(CSRC.glob("*.h")):
         h.update(header.name.encode())
         h.update(header.read_bytes())
-    h.update(" ".join(CFLAGS).encode())
+    h.update(" ".join(CFLAGS + LDFLAGS).encode())
     h.update(torch.__version__.encode())
     h.update(sys.version.encode())
     h.update(f"{sys.platform} {platform.machine()}".encode())  # a home folder shared across machines
@@ -112,6 +116,7 @@ def _compile(verbose: bool = False) -> None:
         name=_library_name(),
         sources=[str(CSRC / name) for name in SOURCES],
         extra_cflags=list(CFLAGS),
+        extra_ldflags=list(LDFLAGS),
         build_directory=str(directory),
         is_python_module=False,
         verbose=verbose,

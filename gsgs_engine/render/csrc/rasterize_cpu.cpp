@@ -666,6 +666,9 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
     std::vector<float>().swap(entry_grad);
     entry_grad.resize(need);
   }
+  // The worker threads must write the calling thread's buffer: naming the thread_local inside the
+  // parallel lambdas would resolve to each worker's own (empty) instance.
+  float* const records = entry_grad.data();
   const float* bg = background.data_ptr<float>();
   const float* T_p = final_T.data_ptr<float>();
   const int32_t* last_p = last.data_ptr<int32_t>();
@@ -678,7 +681,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
     backward_tile(splats.data(), ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
-                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, entry_grad.data());
+                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, records);
   });
 
   lap(gsgs_phase::kRasterBackward);
@@ -698,7 +701,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
     for (int64_t s = s0; s < s1; ++s) {
       float sum[kGradFields] = {0};
       for (int32_t e = soff[s]; e < soff[s + 1]; ++e) {
-        const float* rec = entry_grad.data() + static_cast<int64_t>(e) * kGradFields;
+        const float* rec = records + static_cast<int64_t>(e) * kGradFields;
         for (int f = 0; f < kGradFields; ++f) sum[f] += rec[f];
       }
       const int64_t g = ord[s];
