@@ -306,3 +306,21 @@ def test_bench_cell_measures_a_row_and_tabulates():
     assert skipped["forward_ms"] is None and skipped["note"].startswith("skipped: over budget")
     table = markdown_table([{**row, "speedup_vs_reference": 1.0}, {**skipped, "speedup_vs_reference": None}])
     assert table.count("\n") == 3 and "| reference | 50 | 32x32 |" in table and "skipped: over budget" in table
+
+
+def test_bench_thread_list_runs_each_count_and_reports_the_scaling(capsys):
+    """`--threads 1,2` measures every cell at each count in one run (one subprocess per cell) and
+    states the speed-up over the first count beside it."""
+    import argparse
+
+    from gsgs_engine.bench import rasterizer
+
+    parser = argparse.ArgumentParser()
+    rasterizer.add_arguments(parser)
+    args = parser.parse_args(["--sizes", "200", "--resolutions", "32", "--repeats", "1", "--backends", "reference",
+                              "--threads", "1,2"])
+    assert rasterizer.run(args) == 0
+    table = capsys.readouterr().out
+    rows = [line for line in table.splitlines() if line.startswith("| reference |")]
+    assert [r.split("|")[4].strip() for r in rows] == ["1", "2"]
+    assert rows[0].split("|")[9].strip() == "1.00" and float(rows[1].split("|")[9]) > 0

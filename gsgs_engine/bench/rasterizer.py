@@ -36,7 +36,9 @@ def add_arguments(parser) -> None:
                         help="comma-separated subset of reference,cpu,cuda (default: every available one)")
     parser.add_argument("--budget-s", type=float, default=120.0,
                         help="per-cell time budget; a cell expected to exceed it is skipped (default 120)")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--threads", default=None,
+                        help="torch CPU threads, or a comma-separated list (e.g. 1,2: every cell at each count, "
+                             "side by side, with the speed-up over the first); default: torch's choice")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -176,12 +178,15 @@ def _fmt(value, digits=1) -> str:
 
 
 def markdown_table(rows: list[dict]) -> str:
-    lines = ["| backend | gaussians | resolution | forward ms | fwd+bwd ms | peak MB | speed-up vs reference (fwd+bwd) | note |",
-             "|---|---:|---:|---:|---:|---:|---:|---|"]
+    lines = ["| backend | gaussians | resolution | threads | forward ms | fwd+bwd ms | peak MB | "
+             "speed-up vs reference (fwd+bwd) | speed-up vs the first thread count | note |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in rows:
-        lines.append(f"| {r['backend']} | {r['gaussians']} | {r['width']}x{r['height']} | {_fmt(r['forward_ms'])} | "
-                     f"{_fmt(r['forward_backward_ms'])} | {_fmt(r['peak_mb'])} | "
-                     f"{_fmt(r.get('speedup_vs_reference'), 2)} | {r.get('note', '')} |")
+        threads = "-" if r.get("threads") is None else r["threads"]
+        lines.append(f"| {r['backend']} | {r['gaussians']} | {r['width']}x{r['height']} | {threads} | "
+                     f"{_fmt(r['forward_ms'])} | {_fmt(r['forward_backward_ms'])} | {_fmt(r['peak_mb'])} | "
+                     f"{_fmt(r.get('speedup_vs_reference'), 2)} | {_fmt(r.get('speedup_vs_first_threads'), 2)} | "
+                     f"{r.get('note', '')} |")
     return "\n".join(lines)
 
 
@@ -210,31 +215,40 @@ def run(args) -> int:
     if not backends:
         raise GsgsError("no rasteriser backend is available to benchmark")
 
+    thread_counts = [None] if args.threads in (None, "") else _parse_list(str(args.threads), "threads")
     print(f"gsgs bench rasterizer: backends {', '.join(backends)}; SH degree {SH_DEGREE}; median of {args.repeats}; "
           f"per-cell budget {args.budget_s:.0f} s", file=sys.stderr)
     rows = []
-    over_budget: dict[str, list[tuple[int, int]]] = {b: [] for b in backends}
+    over_budget: dict[tuple, list[tuple[int, int]]] = {(b, t): [] for b in backends for t in thread_counts}
     for resolution in sorted(resolutions):
         for n in sorted(sizes):
-            for b in backends:
-                if any(n >= n0 and resolution >= r0 for n0, r0 in over_budget[b]):
+            for b, threads in ((b, t) for b in backends for t in thread_counts):
+                if any(n >= n0 and resolution >= r0 for n0, r0 in over_budget[b, threads]):
                     # cost grows with both: no need to spend the budget finding out again
                     row = {"backend": b, "gaussians": n, "width": resolution, "height": resolution,
                            "forward_ms": None, "forward_backward_ms": None, "peak_mb": None,
                            "note": "skipped: over budget (a smaller cell already was)"}
                 else:
-                    row = _run_cell_subprocess(b, n, resolution, args.repeats, args.budget_s, args.seed, args.threads)
+                    row = _run_cell_subprocess(b, n, resolution, args.repeats, args.budget_s, args.seed, threads)
                 if row.get("note", "").startswith("skipped: over budget"):
-                    over_budget[b].append((n, resolution))
-                print(f"  {b:9s} N={n:<7d} {resolution}x{resolution}: fwd {_fmt(row['forward_ms'])} ms, "
+                    over_budget[b, threads].append((n, resolution))
+                row.setdefault("threads", threads)
+                print(f"  {b:9s} N={n:<7d} {resolution}x{resolution} threads {row['threads']}: "
+                      f"fwd {_fmt(row['forward_ms'])} ms, "
                       f"fwd+bwd {_fmt(row['forward_backward_ms'])} ms, peak {_fmt(row['peak_mb'])} MB "
                       f"{row.get('note', '')}", file=sys.stderr, flush=True)
                 rows.append(row)
-    reference = {(r["gaussians"], r["width"]): r["forward_backward_ms"] for r in rows if r["backend"] == "reference"}
+    reference = {(r["gaussians"], r["width"], r["threads"]): r["forward_backward_ms"]
+                 for r in rows if r["backend"] == "reference"}
+    first = {(r["backend"], r["gaussians"], r["width"]): r["forward_backward_ms"]
+             for r in reversed(rows) if r["threads"] == thread_counts[0]}
     for r in rows:
-        ref = reference.get((r["gaussians"], r["width"]))
+        ref = reference.get((r["gaussians"], r["width"], r["threads"]))
         mine = r["forward_backward_ms"]
         r["speedup_vs_reference"] = round(ref / mine, 2) if ref and mine else None
+        base = first.get((r["backend"], r["gaussians"], r["width"]))
+        r["speedup_vs_first_threads"] = (round(base / mine, 2) if len(thread_counts) > 1 and base and mine
+                                         else None)
     print(markdown_table(rows))
     if args.json:
         with open(args.json, "w") as fh:
