@@ -1,23 +1,26 @@
 """A training time estimate the Train panel states before a job starts.
 
-Scaled from measured runs on the project's 2-core CPU machine: 1000 iterations at 200x200 px took
-130 s without a prior (gsgs_engine/presets.py docstring, docs/accuracy_lego_200.md), the weights-free
-prior costs 1.6x (llff_flower, same source), and a photo job at 1600x871 px with the prior took
-257 s for 100 steps (issue 15's headless run). One step renders one training view, so the time
-grows with the iterations and, less than linearly, with the pixels of a view: those two points give
-seconds per step ~ pixels^0.7. It is a rough figure (Gaussian counts, densification and the machine
-change it) and the panel says so.
+Scaled from measured runs on the project's 2-core CPU machine with the multi-threaded kernel
+(2026-11-23, `gsgs bench sparse` seed 0, docs/sparse_bench.md): LLFF 3 views at 504x378, 1000
+steps, plain 3DGS took 231 s (flower) and 174 s (horns) including planning and initialisation,
+so 200 s is the reference; `--prior auto` (MVS init, the sparse-view techniques, warp-inpaint
+pseudo views) took 1.63x and 1.87x that, so 1.75x. Photos of real scenes grow Gaussian counts like
+LLFF does (150k+ without the count control); synthetic orbits cost less (lego 400 px: 70 s plain).
+Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71,
+the exponent measured between 200x200 and 1600x871 px runs (the previous kernel; issue 15's
+photo job). Checked on the default headless workflow (scripts/reconstruct.py on photos_santorini,
+3 photos, 1000 steps at 1600x871, preset balanced, 2026-11-23): stated "~24 min" before training,
+took 1474 s (24.6 min) end to end. It is a rough figure (Gaussian counts, densification and the machine change it) and
+the panel says so.
 """
 
 from __future__ import annotations
 
-REFERENCE_SECONDS = 130.0  # 1000 it, 200x200 px, 2-core CPU, prior none (presets.py)
+REFERENCE_SECONDS = 200.0  # 1000 it, 504x378 px (LLFF 3 views), 2-core CPU, prior none
 REFERENCE_ITERS = 1000
-REFERENCE_PIXELS = 200 * 200
-PRIOR_FACTOR = 1.6  # the weights-free prior on llff_flower (presets.py)
-MIN_PIXEL_FACTOR = 0.25  # below ~100x100 px per-step overheads dominate
-# 257 s / 100 steps / 1.6 (prior) = 1.6 s per step at 1600x871 against 0.13 s at 200x200:
-# log(1.6 / 0.13) / log(1600 * 871 / 40000) = 0.71
+REFERENCE_PIXELS = 504 * 378
+PRIOR_FACTOR = 1.75  # --prior auto on the same runs (flower 1.63x, horns 1.87x)
+MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 
 

@@ -148,8 +148,9 @@ def test_cycles_render_matches_the_engine(tmp_path):
 def test_training_estimate_reproduces_its_reference_runs():
     from gsgs_blender import train_estimate
 
-    assert train_estimate.estimate_seconds(1000, 200, 200, 1.0, "none") == pytest.approx(130.0)
-    photo = train_estimate.estimate_seconds(100, 1600, 871, 1.0, "auto")  # issue 15's photo job: 257 s
-    assert 200 < photo < 320
-    assert train_estimate.estimate_seconds(1000, 200, 200, 0.5, "none") < 130.0
+    assert train_estimate.estimate_seconds(1000, 504, 378, 1.0, "none") == pytest.approx(200.0)
+    auto = train_estimate.estimate_seconds(1000, 504, 378, 1.0, "auto")  # measured 376 s (flower), 324 s (horns)
+    assert 320 < auto < 380
+    assert train_estimate.estimate_seconds(1000, 504, 378, 0.5, "none") < 200.0
+    assert train_estimate.estimate_seconds(2000, 504, 378, 1.0, "none") == pytest.approx(400.0)
     assert train_estimate.format_duration(4000) == "67 min"
