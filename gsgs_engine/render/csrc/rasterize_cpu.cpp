@@ -190,6 +190,20 @@ void radix_sort_by_key(std::vector<uint32_t>& keys, std::vector<int32_t>& ids) {
   }
 }
 
+// n values of T kept per calling thread between calls (Tag tells apart buffers alive at the same time):
+// a training step would otherwise take fresh pages, and have them cleared, for every one of them each
+// time. The contents are unspecified; callers write every value they read. Take the pointer in the
+// calling thread: a thread_local named inside a parallel lambda is each worker's own.
+template <typename T, int Tag>
+T* reusable_buffer(size_t n) {
+  static thread_local std::vector<T> buffer;
+  if (buffer.size() < n || buffer.size() > 4 * n + (size_t{1} << 16)) {
+    std::vector<T>().swap(buffer);
+    buffer.resize(std::max<size_t>(n, 1));
+  }
+  return buffer.data();
+}
+
 struct TileRect {
   int x0, x1, y0, y1;  // inclusive tile index range
 };
@@ -426,7 +440,7 @@ GSGS_HOT void backward_tile(const Splat* splats, const int32_t* ranks, const int
 // Visible Gaussians in (depth, index) order and their per-tile lists.
 struct Binning {
   std::vector<int32_t> order;        // rank -> Gaussian index
-  std::vector<Splat> splats;         // by rank
+  const Splat* splats = nullptr;     // by rank (a reusable buffer of the calling thread)
   std::vector<int32_t> slot_offset;  // rank -> first gradient slot (size n_vis + 1)
   at::Tensor tile_offsets;           // int32 [n_tiles + 1]
   at::Tensor tile_ranks;             // int32 [n_entries], depth-sorted per tile
@@ -485,12 +499,13 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   b.order = std::move(ids);
   const int64_t n_vis = static_cast<int64_t>(b.order.size());
 
-  b.splats.resize(n_vis);
-  std::vector<TileRect> rects(n_vis);
+  Splat* const splats = reusable_buffer<Splat, 0>(n_vis);
+  TileRect* const rects = reusable_buffer<TileRect, 0>(n_vis);
+  b.splats = splats;
   at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const int64_t g = b.order[s];
-      Splat& sp = b.splats[s];
+      Splat& sp = splats[s];
       sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
                  col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f};
       alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
@@ -597,7 +612,7 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
   int32_t* last_p = last.data_ptr<int32_t>();
   for_each_tile(tile_schedule(offsets, tiles_x * tiles_y), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
-    forward_tile(b.splats.data(), ranks + offsets[t], offsets[t + 1] - offsets[t], tx * kTile, ty * kTile, W, H,
+    forward_tile(b.splats, ranks + offsets[t], offsets[t + 1] - offsets[t], tx * kTile, ty * kTile, W, H,
                  bg, color_p, depth_p, alpha_p, T_p, last_p);
   });
 
@@ -643,7 +658,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const float* op = opacities.data_ptr<float>();
   const float* dp = depths.data_ptr<float>();
   const int32_t* ord = order.data_ptr<int32_t>();
-  std::vector<Splat> splats(n_vis);
+  Splat* const splats = reusable_buffer<Splat, 1>(n_vis);
   at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const int64_t g = ord[s];
@@ -680,7 +695,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   lap(gsgs_phase::kBackwardPrep);
   for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
-    backward_tile(splats.data(), ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
+    backward_tile(splats, ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
                   ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, records);
   });
 

@@ -82,11 +82,24 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
   const S* xi = img.data_ptr<S>();
   const S* yi = target.data_ptr<S>();
 
-  // Planes per channel: x, y, xx, yy, xy (then blurred in place through a scratch buffer).
-  std::vector<S> maps(static_cast<size_t>(5 * C) * plane), tmp(maps.size());
+  // One scratch buffer for every plane below, kept per calling thread between calls: a training step
+  // would otherwise allocate (and the kernel zero, page by page) 16 C H W fresh values each time.
+  // Every plane is written in full before it is read, so it needs no clearing. The lambdas use the
+  // pointers taken here: naming the thread_local inside them would reach each worker's own copy.
+  static thread_local std::vector<S> scratch;
+  const size_t plane_count = static_cast<size_t>(16 * C) * plane;
+  if (scratch.size() < plane_count || scratch.size() > 4 * plane_count + (size_t{1} << 20)) {
+    std::vector<S>().swap(scratch);
+    scratch.resize(plane_count);
+  }
+  // Planes per channel: x, y, xx, yy, xy (then blurred in place through `tmp`).
+  S* const maps = scratch.data();
+  S* const tmp = maps + static_cast<int64_t>(5 * C) * plane;
+  S* const coef = tmp + static_cast<int64_t>(5 * C) * plane;
+  S* const coef_blur = coef + static_cast<int64_t>(3 * C) * plane;
   at::parallel_for(0, plane, 4096, [&](int64_t p0, int64_t p1) {
     for (int c = 0; c < C; ++c) {
-      S* base = maps.data() + static_cast<int64_t>(5 * c) * plane;
+      S* base = maps + static_cast<int64_t>(5 * c) * plane;
       for (int64_t p = p0; p < p1; ++p) {
         const S x = xi[p * C + c], y = yi[p * C + c];
         base[p] = x;
@@ -97,16 +110,15 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
       }
     }
   });
-  blur(maps.data(), tmp.data(), maps.data(), 5 * C, H, W, w, taps);
+  blur(maps, tmp, maps, 5 * C, H, W, w, taps);
 
   // Per pixel: the SSIM value (summed per row) and the three coefficient maps of the gradient.
-  std::vector<S> coef(static_cast<size_t>(3 * C) * plane), coef_blur(coef.size());
   std::vector<double> row_sum(static_cast<size_t>(C) * H, 0.0);
   at::parallel_for(0, static_cast<int64_t>(C) * H, 16, [&](int64_t r0, int64_t r1) {
     for (int64_t row = r0; row < r1; ++row) {
       const int64_t c = row / H, y = row % H;
-      const S* base = maps.data() + 5 * c * plane + y * W;
-      S* k = coef.data() + 3 * c * plane + y * W;
+      const S* base = maps + 5 * c * plane + y * W;
+      S* k = coef + 3 * c * plane + y * W;
       double sum = 0.0;
       for (int x = 0; x < W; ++x) {
         const S mu1 = base[x], mu2 = base[plane + x];
@@ -129,13 +141,13 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
   for (double v : row_sum) total += v;
   const double count = static_cast<double>(plane) * C;
 
-  blur(coef.data(), coef_blur.data(), coef.data(), 3 * C, H, W, w, taps);
+  blur(coef, coef_blur, coef, 3 * C, H, W, w, taps);
   at::Tensor grad = at::empty_like(img);
   S* g = grad.data_ptr<S>();
   const S inv_count = static_cast<S>(1.0 / count);
   at::parallel_for(0, plane, 4096, [&](int64_t p0, int64_t p1) {
     for (int c = 0; c < C; ++c) {
-      const S* k = coef.data() + static_cast<int64_t>(3 * c) * plane;
+      const S* k = coef + static_cast<int64_t>(3 * c) * plane;
       for (int64_t p = p0; p < p1; ++p) {
         const S x = xi[p * C + c], y = yi[p * C + c];
         g[p * C + c] = (k[p] + 2 * x * k[plane + p] + y * k[2 * plane + p]) * inv_count;
