@@ -2,10 +2,11 @@
 
 Scaled from measured runs on the project's 2-core CPU machine with the multi-threaded kernel
 (2026-11-23, `gsgs bench sparse` seed 0, docs/sparse_bench.md): LLFF 3 views at 504x378, 1000
-steps, plain 3DGS took 231 s (flower) and 174 s (horns) including planning and initialisation,
+steps, plain 3DGS took 231 s (flower) and 180 s (horns) including planning and initialisation,
 so 200 s is the reference; `--prior auto` (MVS init, the sparse-view techniques, warp-inpaint
-pseudo views) took 1.63x and 1.87x that, so 1.75x. Photos of real scenes grow Gaussian counts like
-LLFF does (150k+ without the count control); synthetic orbits cost less (lego 400 px: 70 s plain).
+pseudo views) took 1.61x and 1.77x that, rounded up to 1.75x. (The 3-seed means, finished later:
+193 s plain, 349 s auto, 1.81x.) Photos of real scenes grow Gaussian counts like
+LLFF does (150k+ without the count control); synthetic orbits cost less (lego 400 px: 81 s plain).
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71,
 the exponent measured between 200x200 and 1600x871 px runs (the previous kernel; issue 15's
 photo job). Checked on the default headless workflow (scripts/reconstruct.py on photos_santorini,
@@ -19,7 +20,7 @@ from __future__ import annotations
 REFERENCE_SECONDS = 200.0  # 1000 it, 504x378 px (LLFF 3 views), 2-core CPU, prior none
 REFERENCE_ITERS = 1000
 REFERENCE_PIXELS = 504 * 378
-PRIOR_FACTOR = 1.75  # --prior auto on the same runs (flower 1.63x, horns 1.87x)
+PRIOR_FACTOR = 1.75  # --prior auto on the same runs (flower 1.61x, horns 1.77x)
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 
