@@ -23,6 +23,7 @@
 
 #include "hot.h"
 #include "phase_timer.h"
+#include "reusable_buffer.h"
 
 #include <algorithm>
 #include <atomic>
@@ -190,19 +191,7 @@ void radix_sort_by_key(std::vector<uint32_t>& keys, std::vector<int32_t>& ids) {
   }
 }
 
-// n values of T kept per calling thread between calls (Tag tells apart buffers alive at the same time):
-// a training step would otherwise take fresh pages, and have them cleared, for every one of them each
-// time. The contents are unspecified; callers write every value they read. Take the pointer in the
-// calling thread: a thread_local named inside a parallel lambda is each worker's own.
-template <typename T, int Tag>
-T* reusable_buffer(size_t n) {
-  static thread_local std::vector<T> buffer;
-  if (buffer.size() < n || buffer.size() > 4 * n + (size_t{1} << 16)) {
-    std::vector<T>().swap(buffer);
-    buffer.resize(std::max<size_t>(n, 1));
-  }
-  return buffer.data();
-}
+using gsgs_scratch::reusable_buffer;
 
 struct TileRect {
   int x0, x1, y0, y1;  // inclusive tile index range
@@ -673,17 +662,8 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const int32_t* ranks = tile_ranks.data_ptr<int32_t>();
   const int32_t* slots = entry_slots.data_ptr<int32_t>();
   const int64_t n_entries = tile_ranks.numel();
-  // Every record is written exactly once by its tile, so the buffer needs no zeroing; it is kept per
-  // calling thread between calls (no page faults for a fresh ~40 bytes per entry every step).
-  static thread_local std::vector<float> entry_grad;
-  const size_t need = static_cast<size_t>(n_entries) * kGradFields;
-  if (entry_grad.size() < need || entry_grad.size() > 4 * need + (size_t{1} << 20)) {
-    std::vector<float>().swap(entry_grad);
-    entry_grad.resize(need);
-  }
-  // The worker threads must write the calling thread's buffer: naming the thread_local inside the
-  // parallel lambdas would resolve to each worker's own (empty) instance.
-  float* const records = entry_grad.data();
+  // Every record is written exactly once by its tile, so the buffer needs no zeroing (~40 bytes per entry).
+  float* const records = reusable_buffer<float, 2>(static_cast<size_t>(n_entries) * kGradFields);
   const float* bg = background.data_ptr<float>();
   const float* T_p = final_T.data_ptr<float>();
   const int32_t* last_p = last.data_ptr<int32_t>();

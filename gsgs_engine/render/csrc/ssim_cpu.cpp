@@ -19,6 +19,7 @@
 #include <torch/library.h>
 
 #include "hot.h"
+#include "reusable_buffer.h"
 
 #include <algorithm>
 #include <cstdint>
@@ -82,18 +83,10 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
   const S* xi = img.data_ptr<S>();
   const S* yi = target.data_ptr<S>();
 
-  // One scratch buffer for every plane below, kept per calling thread between calls: a training step
-  // would otherwise allocate (and the kernel zero, page by page) 16 C H W fresh values each time.
-  // Every plane is written in full before it is read, so it needs no clearing. The lambdas use the
-  // pointers taken here: naming the thread_local inside them would reach each worker's own copy.
-  static thread_local std::vector<S> scratch;
-  const size_t plane_count = static_cast<size_t>(16 * C) * plane;
-  if (scratch.size() < plane_count || scratch.size() > 4 * plane_count + (size_t{1} << 20)) {
-    std::vector<S>().swap(scratch);
-    scratch.resize(plane_count);
-  }
+  // One scratch buffer for every plane below, reused between calls; every plane is written in full
+  // before it is read.
+  S* const maps = gsgs_scratch::reusable_buffer<S, 0>(static_cast<size_t>(16 * C) * plane);
   // Planes per channel: x, y, xx, yy, xy (then blurred in place through `tmp`).
-  S* const maps = scratch.data();
   S* const tmp = maps + static_cast<int64_t>(5 * C) * plane;
   S* const coef = tmp + static_cast<int64_t>(5 * C) * plane;
   S* const coef_blur = coef + static_cast<int64_t>(3 * C) * plane;
