@@ -67,10 +67,10 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     if config.init == "mvs" and not scene.has_time and not (
             resume and checkpoint_dir is not None and ckpt.latest_checkpoint(checkpoint_dir) is not None):
         # dense initialisation: multi-view stereo over the training views (known poses) + their SfM points
-        from gsgs_engine.init.mvs import dense_initial_model
+        from gsgs_engine.init.mvs import MVSConfig, dense_initial_model
 
         initial, init_info = dense_initial_model(scene, trainer.train_views, config.sh_degree, seed=config.seed,
-                                                 log=log)
+                                                 config=MVSConfig(max_side=config.mvs_max_side), log=log)
     trainer.setup(resume=resume, initial_model=initial, init_info=init_info)
     if setup_trainer is not None:  # the orchestration adds the run's techniques here
         setup_trainer(trainer)
@@ -132,14 +132,14 @@ def config_from_settings(settings: dict) -> TrainConfig:
 
     settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-               "init", "random_init_points", "densify", "max_gaussians", "prior", "prior_settings",
+               "init", "random_init_points", "mvs_max_side", "densify", "max_gaussians", "prior", "prior_settings",
                "resolution_scale", "background", "preset", "effects", "techniques"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
     cfg = TrainConfig()
     for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-                "init", "random_init_points", "densify"):
+                "init", "random_init_points", "mvs_max_side", "densify"):
         if key in settings and settings[key] not in (None, "auto"):
             setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
     if "max_gaussians" in settings:

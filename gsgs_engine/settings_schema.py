@@ -62,6 +62,7 @@ TRAIN = {
     "random_background": Rule("bool"),
     "init": Rule("choice", choices=("auto", "sfm", "points", "random", "mvs"), flag="--init"),
     "random_init_points": Rule("int", 1, 2_000_000, flag="--init-points"),
+    "mvs_max_side": Rule("int", 16, 8192, flag="--mvs-size"),
     "densify": Rule("bool"),
     "max_gaussians": Rule("int", 1, 100_000_000),
     "prior": Rule("str", allow_none=True, flag="--prior"),

@@ -179,6 +179,10 @@ def test_job_settings_are_checked(tmp_path):
         config_from_settings({"iterz": 5})
     with pytest.raises(GsgsError, match="backend"):
         config_from_settings({"backend": "tpu"})
+    assert config_from_settings({}).mvs_max_side == 256
+    assert config_from_settings({"mvs_max_side": 512}).mvs_max_side == 512
+    with pytest.raises(GsgsError, match="mvs_max_side"):
+        config_from_settings({"mvs_max_side": 4})
 
 
 # -- real subprocesses (slow on a shared 2-core machine: torch import per process) ----------------

@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(dense multi-view stereo of the training views plus their SfM points)")
     parser.add_argument("--init-points", type=int, default=None,
                         help="number of random Gaussians when there are too few SfM points (default 5000)")
+    parser.add_argument("--mvs-size", type=int, default=None,
+                        help="--init mvs: longest side (px) of the images the plane sweep works on (default 256; "
+                             "reduced further to keep the sweep within its budget)")
     parser.add_argument("--random-background", action="store_true",
                         help="RGBA scenes: a random background colour each step (target composited on the same)")
     bg = parser.add_mutually_exclusive_group()
@@ -90,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
                          backend=args.backend, seed=args.seed,
                          checkpoint_every=args.checkpoint_every, random_background=args.random_background,
                          init=args.init)
+    if args.mvs_size is not None:
+        config.mvs_max_side = args.mvs_size
     if args.init_points is not None:
         if args.init_points < 1:
             raise GsgsError(f"--init-points must be at least 1 (got {args.init_points})")

@@ -48,6 +48,7 @@ class TrainConfig:
     init: str = "auto"  # auto | sfm | points | random
     min_init_points: int = 100
     random_init_points: int = 5000
+    mvs_max_side: int = 256  # init "mvs": working size of the plane sweep (longest side, px; gsgs_engine.init.mvs)
     densify: bool = True
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
@@ -549,5 +550,7 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"--sh-degree must be 0..3 (got {cfg.sh_degree})")
     if cfg.checkpoint_every < 0:
         raise GsgsError(f"--checkpoint-every must be >= 0 (got {cfg.checkpoint_every})")
+    if cfg.mvs_max_side < 16:
+        raise GsgsError(f"--mvs-size must be at least 16 pixels (got {cfg.mvs_max_side})")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
         raise GsgsError(f"unknown backend {cfg.backend!r}; use auto, reference, cpu or cuda")
