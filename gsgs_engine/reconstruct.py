@@ -69,8 +69,10 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         # dense initialisation: multi-view stereo over the training views (known poses) + their SfM points
         from gsgs_engine.init.mvs import MVSConfig, dense_initial_model
 
+        t0 = time.perf_counter()
         initial, init_info = dense_initial_model(scene, trainer.train_views, config.sh_degree, seed=config.seed,
                                                  config=MVSConfig(max_side=config.mvs_max_side), log=log)
+        trainer.phase_seconds["init"] += time.perf_counter() - t0  # stereo, SfM points, initial Gaussians
     trainer.setup(resume=resume, initial_model=initial, init_info=init_info)
     if setup_trainer is not None:  # the orchestration adds the run's techniques here
         setup_trainer(trainer)

@@ -100,12 +100,19 @@ def test_bad_config_is_refused():
         MVSConfig(window=4).validate()
 
 
-def test_train_and_export_starts_from_the_dense_model_with_init_mvs(tmp_path):
+def test_train_and_export_starts_from_the_dense_model_with_init_mvs(tmp_path, monkeypatch):
+    import gsgs_engine.init.mvs as mvs
     from gsgs_engine.reconstruct import train_and_export
     from gsgs_engine.train.trainer import TrainConfig
     from test_trainer import make_scene
 
-    config = TrainConfig(iters=3, sh_degree=0, init="mvs", backend="auto", checkpoint_every=0)
+    config = TrainConfig(iters=3, sh_degree=0, init="mvs", backend="auto", checkpoint_every=0, mvs_max_side=32)
+    sizes = []
+    real = mvs.dense_points
+    monkeypatch.setattr(mvs, "dense_points", lambda *a, **k: sizes.append(k["config"].max_side) or real(*a, **k))
     metrics = train_and_export(make_scene(n_train=3, n_test=1), config, tmp_path / "out", None)
     assert metrics["init"]["method"].startswith("mvs") and metrics["iterations"] == 3
     assert metrics["plan"]["init"] == metrics["init"]
+    assert sizes == [32]  # the sweep ran at the configured working size
+    # the stereo and the initial Gaussians are part of the run's clock (the benchmarks' total seconds)
+    assert metrics["phase_seconds"]["init"] > 0
