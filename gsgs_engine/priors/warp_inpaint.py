@@ -164,8 +164,10 @@ def warp_inpaint(camera: Camera, render: torch.Tensor, depth: torch.Tensor, alph
     image[seen] = acc[seen] / wsum[seen][:, None]
     holes = covered & ~seen
     empty = ~covered if fill_empty else torch.zeros_like(covered)
-    image = fill_holes(image, holes, z, hole_fill)
-    image = inpaint(image, empty)
+    if hole_fill == "telea":  # holes and empty pixels in one inpainting (a hole beside an empty area sees both)
+        image = inpaint(image, holes | empty)
+    else:
+        image = inpaint(fill_holes(image, holes, z, hole_fill), empty)
     trusted = ~holes if hole_fill == "mask" else torch.ones_like(holes)
     n = max(int(covered.sum()), 1)
     stats = {"covered": float(covered.float().mean()), "warped": float(seen.sum()) / n,
