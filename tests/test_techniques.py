@@ -113,26 +113,34 @@ def test_binocular_warp_with_true_depth_reproduces_the_view():
     assert masked_l1(wrong, img, valid_w) > 5 * masked_l1(warped, img, valid)  # wrong depth costs
 
 
-def test_binocular_baseline_follows_the_near_content_not_the_median():
+def test_binocular_baseline_is_a_tenth_of_the_depth_capped_by_the_rig():
     from gsgs_engine import GsgsError
-    from gsgs_engine.train.techniques.binocular import BinocularConsistency, scene_depth
+    from gsgs_engine.train.techniques.binocular import BinocularConsistency, rig_baseline, scene_depth
 
-    # a forward-facing layout: a near subject (20 % of the points at depth 2) before a far wall (depth 10)
+    # a forward-facing rig: cameras 0.2 apart before a wall at depth 10 (a tenth of it: 1.0 > 0.75 x 0.2)
     cams = [np.array([x, 0.0, 0.0]) for x in (-0.2, 0.0, 0.2)]
-    near = np.stack([np.linspace(-1, 1, 200), np.zeros(200), np.full(200, 2.0)], 1)
-    far = np.stack([np.linspace(-5, 5, 800), np.zeros(800), np.full(800, 10.0)], 1)
-    pts = np.concatenate([near, far])
-    assert 9.0 < scene_depth(pts, cams) < 11.5  # the median: the wall
-    assert 2.0 <= scene_depth(pts, cams, 10.0) < 2.3  # the near content
+    wall = np.stack([np.linspace(-5, 5, 800), np.zeros(800), np.full(800, 10.0)], 1)
+    assert 10.0 <= scene_depth(wall, cams) < 11.2
+    assert rig_baseline(cams) == pytest.approx(0.2) and rig_baseline(cams[:1]) is None
     trainer = make_trainer(iters=10)
     trainer.setup()
     bino = trainer.add_technique(BinocularConsistency())
     means = trainer.model.means.detach().numpy()
     centres = [v.camera.center for v in trainer.train_views]
-    assert bino.max_baseline == pytest.approx(0.1 * scene_depth(means, centres, 10.0))
-    assert bino.report()["depth_percentile"] == 10.0
-    with pytest.raises(GsgsError, match="depth_percentile"):
-        BinocularConsistency(depth_percentile=120)
+    depth_rule, cap = 0.1 * scene_depth(means, centres), 0.75 * rig_baseline(centres)
+    assert bino.max_baseline == pytest.approx(min(depth_rule, cap))
+    assert bino.report()["rig_baseline"] == pytest.approx(rig_baseline(centres))
+    # the rule that binds, either way round
+    loose, tight = BinocularConsistency(rig_fraction=1e6), BinocularConsistency(rig_fraction=1e-3)
+    loose.install(trainer)
+    tight.install(trainer)
+    assert loose.max_baseline == pytest.approx(depth_rule)
+    assert tight.max_baseline == pytest.approx(1e-3 * rig_baseline(centres))
+    restored = BinocularConsistency()
+    restored.load_state_dict(tight.state_dict())
+    assert restored.max_baseline == tight.max_baseline and restored.rig_baseline == tight.rig_baseline
+    with pytest.raises(GsgsError, match="rig_fraction"):
+        BinocularConsistency(rig_fraction=0)
 
 
 def test_binocular_terms_have_finite_gradients_and_smoothness_respects_edges():

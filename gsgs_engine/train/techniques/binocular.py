@@ -16,14 +16,15 @@ The gradient reaches both the shifted render's colours and the training view's d
 the sampling positions), so geometry that is wrong between the views gets a photometric signal
 from a single photo. Binocular3DGS's defaults: baseline 0.4 in scene units for scenes of about
 4 units' depth (Blender) and the shifted view from 2/3 (LLFF 20k/30k) or 4/7 (Blender 4k/7k) of
-training. Here the baseline is relative to the depth of the scene's near content: 0.1 x the 10th
-percentile of the distances from the initial points to their nearest training camera (measured
-once at install and checkpointed), so that one setting serves every scene, and the start is 0.6
-of the run. The near content, not the median, sets it because the disparity of the nearest
-surfaces is what the warp must bridge: on a forward-facing capture the median lies far behind the
-subject (LLFF flower: median 72, 10th percentile 26 scene units) and a median-scaled shift of
-that rig measured 0.5 dB worse (docs/sparse_techniques.md); on an object orbit the two are close
-(Blender lego 3.0 vs 3.35: about Binocular3DGS's 0.4 either way).
+training. Here the baseline is relative to the scene, so that one setting serves every scene:
+0.1 x its depth (the median distance from the initial points to their nearest training camera),
+but never more than 0.75 x the rig's own baseline (the mean distance from a training camera to
+its nearest neighbour): the virtual stereo partner stays within what the capture spans. Both are
+measured once at install and checkpointed; the start is 0.6 of the run. On object orbits the
+depth term decides (Blender lego: 0.34, about Binocular3DGS's 0.4; the cap would be 1.8); on a
+forward-facing capture whose subject stands far before its background the cap does (LLFF flower:
+depth 70 would give 7.0 against cameras 3.1 apart; capped, 2.3), which measured +0.5 dB there
+with LLFF horns unchanged (depth 3.3, cap 3.3; docs/sparse_techniques.md).
 
 The shifted render goes through `Trainer.render_for_training` (dropout applies to it too) but is
 not added to `ctx.renders`: as in the paper's code, densification statistics come from the
@@ -43,8 +44,8 @@ from gsgs_engine.train.technique import StepContext, Technique
 
 DEFAULT_WEIGHT = 1.0
 DEFAULT_SMOOTH_WEIGHT = 0.05
-DEFAULT_BASELINE_FRACTION = 0.1  # of the near depth: 0.3 units on Blender's objects (Binocular3DGS: 0.4)
-DEFAULT_DEPTH_PERCENTILE = 10.0  # the near depth: this percentile of the point-to-nearest-camera distances
+DEFAULT_BASELINE_FRACTION = 0.1  # of the scene depth: 0.34 units on Blender's objects (Binocular3DGS: 0.4)
+DEFAULT_RIG_FRACTION = 0.75  # cap: of the mean distance from a training camera to its nearest neighbour
 DEFAULT_START_FRACTION = 0.6
 MIN_OPAQUE = 0.5  # a training pixel takes part where the rendered alpha says a surface is there
 
@@ -90,8 +91,18 @@ def edge_aware_smoothness(disparity: torch.Tensor, image: torch.Tensor) -> torch
     return (dx(disparity).abs() * torch.exp(-gx)).mean() + (dy(disparity).abs() * torch.exp(-gy)).mean()
 
 
-def scene_depth(points, camera_centers, percentile: float = 50.0) -> float:
-    """The `percentile` (50: median) of the distances from `points` to their nearest camera centre."""
+def rig_baseline(camera_centers) -> float | None:
+    """Mean distance from each camera centre to its nearest other one (None for fewer than 2 cameras)."""
+    c = np.asarray(camera_centers, dtype=np.float64).reshape(-1, 3)
+    if len(c) < 2:
+        return None
+    d = np.linalg.norm(c[:, None] - c[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    return float(d.min(axis=1).mean())
+
+
+def scene_depth(points, camera_centers) -> float:
+    """Median distance from `points` to their nearest camera centre (the scene's depth scale)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
     centers = np.asarray(camera_centers, dtype=np.float64).reshape(-1, 3)
@@ -99,7 +110,7 @@ def scene_depth(points, camera_centers, percentile: float = 50.0) -> float:
         raise GsgsError("binocular: the model has no finite Gaussian positions to measure the scene depth from")
     if len(pts) > 20000:
         pts = pts[np.linspace(0, len(pts) - 1, 20000).astype(int)]
-    return float(np.percentile(np.linalg.norm(pts[:, None] - centers[None], axis=-1).min(axis=1), percentile))
+    return float(np.median(np.linalg.norm(pts[:, None] - centers[None], axis=-1).min(axis=1)))
 
 
 class BinocularConsistency(Technique):
@@ -107,17 +118,19 @@ class BinocularConsistency(Technique):
 
     def __init__(self, weight: float = DEFAULT_WEIGHT, smooth_weight: float = DEFAULT_SMOOTH_WEIGHT,
                  baseline_fraction: float = DEFAULT_BASELINE_FRACTION, start_fraction: float = DEFAULT_START_FRACTION,
-                 max_baseline: float | None = None, depth_percentile: float = DEFAULT_DEPTH_PERCENTILE):
+                 max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION):
         if weight < 0 or smooth_weight < 0:
             raise GsgsError(f"binocular: weights must be >= 0 (got {weight}, {smooth_weight})")
         if not 0.0 <= start_fraction < 1.0:
             raise GsgsError(f"binocular: start_fraction must be in [0, 1) (got {start_fraction})")
-        if not 0.0 <= depth_percentile <= 100.0:
-            raise GsgsError(f"binocular: depth_percentile must be in [0, 100] (got {depth_percentile})")
-        self.depth_percentile = float(depth_percentile)
+        if not rig_fraction > 0:
+            raise GsgsError(f"binocular: rig_fraction must be positive (got {rig_fraction}); a large value "
+                            "lifts the cap")
+        self.rig_fraction = float(rig_fraction)
+        self.rig_baseline: float | None = None
         self.weight, self.smooth_weight = float(weight), float(smooth_weight)
         self.baseline_fraction, self.start_fraction = float(baseline_fraction), float(start_fraction)
-        self.max_baseline = max_baseline  # scene units; None: baseline_fraction x the near depth at install
+        self.max_baseline = max_baseline  # scene units; None: measured at install (class docstring)
         self.scene_depth: float | None = None
         self.start = 1
         self.steps = 0
@@ -126,9 +139,12 @@ class BinocularConsistency(Technique):
     def install(self, trainer) -> None:
         self.start = max(1, int(round(self.start_fraction * trainer.config.iters)) + 1)
         if self.max_baseline is None:
-            self.scene_depth = scene_depth(trainer.model.means.detach().cpu().numpy(),
-                                           [v.camera.center for v in trainer.train_views], self.depth_percentile)
+            centres = [v.camera.center for v in trainer.train_views]
+            self.scene_depth = scene_depth(trainer.model.means.detach().cpu().numpy(), centres)
+            self.rig_baseline = rig_baseline(centres)
             self.max_baseline = self.baseline_fraction * self.scene_depth
+            if self.rig_baseline is not None and self.rig_baseline > 0:
+                self.max_baseline = min(self.max_baseline, self.rig_fraction * self.rig_baseline)
         if not (np.isfinite(self.max_baseline) and self.max_baseline > 0):
             raise GsgsError(f"binocular: the baseline must be a positive distance (got {self.max_baseline})")
 
@@ -154,15 +170,17 @@ class BinocularConsistency(Technique):
         return terms
 
     def state_dict(self) -> dict:
-        return {"max_baseline": self.max_baseline, "scene_depth": self.scene_depth, "steps": self.steps}
+        return {"max_baseline": self.max_baseline, "scene_depth": self.scene_depth, "rig_baseline": self.rig_baseline,
+                "steps": self.steps}
 
     def load_state_dict(self, state: dict) -> None:
         self.max_baseline = float(state["max_baseline"])
         self.scene_depth = state.get("scene_depth")
+        self.rig_baseline = state.get("rig_baseline")
         self.steps = int(state.get("steps", 0))
 
     def report(self) -> dict:
         return {"weight": self.weight, "smooth_weight": self.smooth_weight, "max_baseline": self.max_baseline,
                 "baseline_fraction": self.baseline_fraction, "scene_depth": self.scene_depth,
-                "depth_percentile": self.depth_percentile,
+                "rig_baseline": self.rig_baseline, "rig_fraction": self.rig_fraction,
                 "start_step": self.start, "steps": self.steps, "last_valid_fraction": round(self.last_valid, 4)}
