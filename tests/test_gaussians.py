@@ -23,6 +23,20 @@ def test_knn_matches_brute_force_across_chunks():
     assert torch.allclose(got, expected, rtol=1e-4, atol=1e-6)
 
 
+def test_knn_by_kd_leaves_is_exact_with_clusters_duplicates_and_outliers():
+    rng = np.random.default_rng(1)
+    flat = rng.normal(size=(500, 3)) * [1.0, 2.0, 0.05]  # a surface-like sheet
+    cluster = rng.normal(size=(150, 3)) * 0.01 + [3.0, 0.0, 0.0]
+    outliers = rng.uniform(-50, 50, size=(8, 3))
+    dupes = np.repeat(flat[:3], 5, axis=0)  # coincident points: their neighbours are at distance 0
+    pts = torch.from_numpy(np.concatenate([flat, cluster, outliers, dupes]).astype(np.float32))
+    brute = knn_mean_sq_dist(pts, k=3, leaf=10 ** 9)
+    for leaf in (8, 16, 64):  # many leaves: the leaf search runs
+        # the same neighbours; cdist rounds a pair slightly differently in a differently shaped block
+        assert torch.allclose(knn_mean_sq_dist(pts, k=3, leaf=leaf), brute, rtol=1e-4, atol=1e-5), leaf
+    assert (brute[-15:] == 0).all() and (brute[650:658] > 10).all()
+
+
 def test_from_points_sizes_by_neighbours_and_sets_colours():
     pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [10, 10, 10]], np.float32)
     cols = np.array([[1, 0, 0]] * 5, np.float32)
