@@ -81,7 +81,6 @@ PRIOR = {
     "geo_loss": Rule("bool"),
     "jitter": Rule("float", 0, 10, flag="--pseudo-jitter"),
     "reach": Rule("float", 0, 100, flag="--pseudo-reach"),
-    "hole_fill": Rule("choice", choices=("background", "telea", "mask"), flag="--hole-fill"),
     "diffusion_model": Rule("str", allow_none=True, flag="--diffusion-model"),
     "depth_adapter": Rule("str", allow_none=True, flag="--depth-adapter"),
     "device": Rule("str", flag="--device"),

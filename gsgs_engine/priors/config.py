@@ -29,7 +29,6 @@ class PriorConfig:
     geo_loss: bool = True
     jitter: float = 0.0
     pseudo_every: int = 1  # a pseudo view is rendered and supervised every this many steps
-    hole_fill: str = "telea"  # warp-inpaint: holes no photo sees: background | telea | mask (priors.warp_inpaint)
     reach: float = 3.0  # forward-facing rigs: half the pseudo views on a ring of reach x the rig's radius (0 = none)
     diffusion_model: str | None = None
     depth_adapter: str | None = None
@@ -114,9 +113,6 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--pseudo-reach", type=float, default=PriorConfig.reach,
                    help="forward-facing rigs: half the pseudo views on a ring of this many rig radii around the "
                         "cameras, past the rig's edges (0 = all between neighbouring cameras)")
-    g.add_argument("--hole-fill", default=PriorConfig.hole_fill, choices=("background", "telea", "mask"),
-                   help="warp-inpaint pseudo views: pixels no photo sees are inpainted from the far side of the hole "
-                        "(background), from every side (telea), or left out of the loss (mask)")
     g.add_argument("--diffusion-model", default=None, help="local Stable Diffusion 1.5 folder (diffusers layout)")
     g.add_argument("--depth-adapter", default=None, help="local depth T2I-Adapter folder")
     g.add_argument("--diffusion-strength", type=float, default=0.6,
@@ -136,8 +132,7 @@ def prior_config_from_args(args) -> PriorConfig:
     return PriorConfig(prior=args.prior, depth_source=args.depth_source, num_pseudo=args.pseudo_views,
                        rounds=args.rounds, warmup_fraction=args.warmup_fraction, pseudo_weight=args.pseudo_weight,
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
-                       jitter=args.pseudo_jitter, reach=args.pseudo_reach, hole_fill=args.hole_fill,
-                       diffusion_model=args.diffusion_model,
+                       jitter=args.pseudo_jitter, reach=args.pseudo_reach, diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
                        techniques=techniques_list(getattr(args, "techniques", None), "--techniques"),
                        diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,

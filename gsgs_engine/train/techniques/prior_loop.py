@@ -124,7 +124,6 @@ class PriorLoop(Technique):
         self.diffusion = None
         self.pseudo = []
         self.active: list[int] = []  # indices into self.pseudo of the views supervised this round
-        self.masks: list = []  # per pseudo view of this round: its trusted pixels (None: all)
 
     # -- set-up -----------------------------------------------------------------------
     def install(self, trainer) -> None:
@@ -213,7 +212,6 @@ class PriorLoop(Technique):
         t1 = time.perf_counter()
         tr.phase_seconds["prior_render"] += t1 - t0
         stats: dict = {"round": k, "step": tr.step, "generator": self.plan["generator"]}
-        self.masks = [None] * len(self.pseudo)
         if self.plan["generator"] == "diffusion":
             images = self._diffusion_round(photos, renders, stats)
         else:
@@ -231,8 +229,7 @@ class PriorLoop(Technique):
         stats["pseudo_views_skipped_low_coverage"] = len(keep) - int(sum(keep))
         self.active = [j for j, k in enumerate(keep) if k]
         self.supervision.set_views([PseudoView(camera=self.pseudo[j].camera, image=images[j], weight=self.cfg.pseudo_weight,
-                                               name=self.pseudo[j].name, nearest_train=self.pseudo[j].nearest_train,
-                                               mask=self.masks[j])
+                                               name=self.pseudo[j].name, nearest_train=self.pseudo[j].nearest_train)
                              for j in self.active])
         if self.depth is not None:
             self.depth.set_pseudo_depth([self.pseudo_depth[j] for j in self.active])
@@ -249,19 +246,14 @@ class PriorLoop(Technique):
         from gsgs_engine.priors.warp_inpaint import warp_inpaint
 
         images, cover = [], []
-        self.masks = []
         for p, out in zip(self.pseudo, renders):
-            img, s, trusted = warp_inpaint(p.camera, out.color, out.depth, out.alpha,
-                                           _same_moment(photos, p.camera), fill_empty=self.fill_empty,
-                                           hole_fill=self.cfg.hole_fill)
+            img, s = warp_inpaint(p.camera, out.color, out.depth, out.alpha, _same_moment(photos, p.camera),
+                                  fill_empty=self.fill_empty)
             images.append(img)
-            self.masks.append(None if bool(trusted.all()) else trusted)
             cover.append(s)
         stats["warped_fraction"] = float(np.mean([s["warped"] for s in cover])) if cover else 0.0
         stats["inpainted_fraction"] = float(np.mean([s["inpainted"] for s in cover])) if cover else 0.0
         stats["empty_filled_fraction"] = float(np.mean([s["empty_filled"] for s in cover])) if cover else 0.0
-        stats["masked_fraction"] = float(np.mean([s["masked"] for s in cover])) if cover else 0.0
-        stats["hole_fill"] = self.cfg.hole_fill
         return images
 
     def _fill_empty_with_gaussians(self, renders, images, stride: int = SEED_STRIDE) -> int:
