@@ -199,6 +199,6 @@ def test_prior_flags_reach_the_config_and_the_plan():
     add_prior_arguments(parser)
     cfg = prior_config_from_args(parser.parse_args(["--prior", "warp", "--pseudo-reach", "2.5", "--pseudo-views", "6"]))
     assert (cfg.prior, cfg.reach, cfg.num_pseudo) == ("warp", 2.5, 6)
-    assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 3.0
+    assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 5.0
     plan = resolve_prior_plan(cfg, 3)
     assert plan["reach"] == 2.5 and plan["pseudo_views"] == 6

@@ -101,7 +101,7 @@ def interpolated_pseudo_views(train: list[Camera], count: int, jitter: float = 0
     return views
 
 
-def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 3.0,
+def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 5.0,
                              first_index: int = 0) -> list[PseudoView]:
     """`count` poses on a ring around a forward-facing rig, beyond the training cameras.
 
