@@ -4,8 +4,9 @@ Scaled from measured runs on the project's 2-core CPU machine with the multi-thr
 (2026-11-23, `gsgs bench sparse` seed 0, docs/sparse_bench.md): LLFF 3 views at 504x378, 1000
 steps, plain 3DGS took 231 s (flower) and 180 s (horns) including planning and initialisation,
 so 200 s is the reference; `--prior auto` (MVS init, the sparse-view techniques, warp-inpaint
-pseudo views) took 1.61x and 1.77x that, rounded up to 1.75x. (The 3-seed means, finished later:
-193 s plain, 349 s auto, 1.81x.) Photos of real scenes grow Gaussian counts like
+pseudo views) took 1.61x and 1.77x that, rounded up to 1.75x. (The 3-seed means of the recipe as it
+stands, issue 14's second grid, 2026-11-24: 193 s plain, 324 s auto with the stereo on the clock,
+1.68x; the factor is left at 1.75, 4 % above.) Photos of real scenes grow Gaussian counts like
 LLFF does (150k+ without the count control); synthetic orbits cost less (lego 400 px: 81 s plain).
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71,
 the exponent measured between 200x200 and 1600x871 px runs (the previous kernel; issue 15's
