@@ -139,6 +139,38 @@ def test_checkpoint_round_trip_is_exact_and_holds_no_pickle(tmp_path):
     assert math.isnan(back["losses"]["loss"]) and back["none"] is None and back["empty"].shape == (0, 3)
 
 
+def test_a_checkpoint_whose_header_length_looks_like_a_signature_still_loads(tmp_path):
+    """A safetensors file starts with its header length (8 bytes, little-endian; the header is padded
+    to 8 bytes). Its first byte is 0x80, a pickle's first byte, one time in 32, and its first two
+    bytes "PK", a zip's, one in 8192. Such a real checkpoint must load."""
+    import pickle
+
+    import torch
+
+    from gsgs_engine import GsgsError
+    from gsgs_engine.train import checkpoint as ckpt
+
+    def encoded(pad: int) -> tuple[dict, bytes]:
+        state = {"pad": "x" * pad, "t": torch.arange(3.0)}
+        return state, ckpt.encode_state(state)
+
+    base = int.from_bytes(encoded(0)[1][:8], "little")
+    for want, modulus in ((b"\x80", 256), (b"PK", 65536)):
+        target = int.from_bytes(want.ljust(8, b"\x00"), "little")
+        start = (target - base) % modulus  # each padding character adds one byte to the header
+        found = [(st, d) for st, d in (encoded(start + k) for k in range(-16, 17) if start + k >= 0)
+                 if d[:len(want)] == want]
+        assert found, want
+        state, data = found[0]
+        back = ckpt.decode_state(data, tmp_path / "ckpt.safetensors")
+        assert torch.equal(back["t"], state["t"]) and back["pad"] == state["pad"]
+    # a real pickle and a too-short file are still refused by name
+    with pytest.raises(GsgsError, match="a pickle"):
+        ckpt.decode_state(pickle.dumps({"a": 1}, protocol=4), tmp_path / "p.safetensors")
+    with pytest.raises(GsgsError, match="too short"):
+        ckpt.decode_state(b"\x01\x02", tmp_path / "s.safetensors")
+
+
 # -- 2. one validation layer for settings -----------------------------------------------------------
 JOB_CASES = [
     ({"prior_settings": {"rounds": 1e9}}, "prior_settings.rounds must be at most 100"),

@@ -139,11 +139,15 @@ def decode_state(data: bytes, where: Path) -> dict:
     from safetensors import SafetensorError
     from safetensors.torch import load
 
-    if len(data) < 8 or data[:1] == b"\x80":  # pickle protocol 2+ starts with 0x80 (torch.save's zip starts "PK")
+    # A safetensors file starts with its JSON header's length (8 bytes, little-endian), then "{". That length
+    # can begin with any byte, 0x80 or "PK" too, so the pickle / zip signatures count only when this fails.
+    looks_safetensors = (len(data) > 8 and data[8:9] == b"{"
+                         and int.from_bytes(data[:8], "little") <= len(data) - 8)
+    if not looks_safetensors and (len(data) < 8 or data[:1] == b"\x80"):  # pickle protocol 2+ starts with 0x80
         kind = "a pickle" if data[:1] == b"\x80" else "too short"
         raise GsgsError(f"{where}: not a gsgs checkpoint ({kind}); it was not loaded (gsgs never unpickles). "
                         f"Delete it; to resume from the previous checkpoint run again, or {START_AFRESH}")
-    if data[:2] == b"PK":
+    if not looks_safetensors and data[:2] == b"PK":  # torch.save's zip archive
         raise GsgsError(f"{where}: a torch.save (pickle) archive, not a gsgs checkpoint; it was not loaded (gsgs never "
                         f"unpickles). Delete it; to {START_AFRESH}")
     try:
