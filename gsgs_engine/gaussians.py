@@ -57,8 +57,8 @@ def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048, leaf: 
     are cut into kd leaves of <= `leaf`; a leaf's points are compared only with the leaves whose
     boxes lie within a bound (the 90th percentile of the k-th neighbour distances inside the leaf).
     A k-th distance found within the bound is exact (every closer point is a candidate); the few
-    points whose neighbours lie further are compared with all points. 69k points: 2.6 s instead
-    of about 40 s on one core.
+    points whose neighbours lie further are compared with all points. A synthetic 69k-point cloud
+    (a sheet, a dense cluster, outliers, duplicates) on one thread: 2.3 s instead of 39 s, equal values.
     """
     n = points.shape[0]
     if n < 2:

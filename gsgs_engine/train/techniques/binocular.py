@@ -23,7 +23,7 @@ its nearest neighbour): the virtual stereo partner stays within what the capture
 measured once at install and checkpointed; the start is 0.6 of the run. On object orbits the
 depth term decides (Blender lego: 0.34, about Binocular3DGS's 0.4; the cap would be 1.8); on a
 forward-facing capture whose subject stands far before its background the cap does (LLFF flower:
-depth 70 would give 7.0 against cameras 3.1 apart; capped, 2.3), which measured +0.5 dB there
+depth 70 would give 7.0 against cameras 3.1 apart; capped, 2.3), which measured +0.34 dB there
 with LLFF horns unchanged (depth 3.3, cap 3.3; docs/sparse_techniques.md).
 
 The shifted render goes through `Trainer.render_for_training` (dropout applies to it too) but is
