@@ -15,6 +15,7 @@ import numpy as np
 
 from gsgs_engine.cameras import (Camera, interpolate_cameras, interpolate_cameras_around, quat_to_rotmat,
                                  rotmat_to_quat)
+from gsgs_engine.priors.config import PriorConfig
 
 
 @dataclass(frozen=True)
@@ -101,7 +102,7 @@ def interpolated_pseudo_views(train: list[Camera], count: int, jitter: float = 0
     return views
 
 
-def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = 5.0,
+def surrounding_pseudo_views(train: list[Camera], count: int, reach: float = PriorConfig.reach,
                              first_index: int = 0) -> list[PseudoView]:
     """`count` poses on a ring around a forward-facing rig, beyond the training cameras.
 

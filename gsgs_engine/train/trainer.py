@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from gsgs_engine import GsgsError
+from gsgs_engine.init.mvs import MVSConfig
 from gsgs_engine.cameras import Camera
 from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
 from gsgs_engine.train import checkpoint as ckpt
@@ -48,7 +49,7 @@ class TrainConfig:
     init: str = "auto"  # auto | sfm | points | random
     min_init_points: int = 100
     random_init_points: int = 5000
-    mvs_max_side: int = 256  # init "mvs": working size of the plane sweep (longest side, px; gsgs_engine.init.mvs)
+    mvs_max_side: int = MVSConfig.max_side  # init "mvs": working size of the plane sweep (longest side, px)
     densify: bool = True
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
