@@ -193,6 +193,12 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert apply_effect_plan(auto_init, TrainConfig(), AUTO)[0].init == "mvs"
     assert plan_effects(make_scene(n_train=4), TrainConfig(), replace(AUTO, prior="none"), SH1,
                         log=lambda m: None)["init"].value == "auto"
+    # naming the techniques (one option changed) under --prior auto keeps the dense init; none of them drops it
+    tuned = plan_effects(make_scene(n_train=4), TrainConfig(), replace(AUTO, techniques=["dropout:max_rate=0.1"]), SH1,
+                         log=lambda m: None)
+    assert tuned["techniques"].source == "user" and tuned["init"].value == "mvs"
+    assert plan_effects(make_scene(n_train=4), TrainConfig(), replace(AUTO, techniques=[]), SH1,
+                        log=lambda m: None)["init"].value == "auto"
 
 
 def test_generator_is_diffusion_only_with_weights(tmp_path):
