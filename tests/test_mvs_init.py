@@ -62,46 +62,6 @@ def test_rgba_background_gives_no_points():
     assert len(dense.points) > 0 and dense.points[:, 0].max() < 0.4 + 1e-3
 
 
-def test_pixels_no_stereo_point_covers_are_filled_on_the_surface():
-    # the outer views' outer strips are seen by no other camera: stereo leaves them empty, the fill puts
-    # points there at the depth inpainted from the view's consistent pixels (the plane)
-    tex = texture(seed=4)
-    views = [plane_view(x, tex) for x in (-0.4, 0.0, 0.4)]
-    off = dense_points(views, config=MVSConfig(num_depths=64, fill_stride=0), log=lambda _m: None)
-    on = dense_points(views, config=MVSConfig(num_depths=64, fill_stride=2), log=lambda _m: None)
-    added = len(on.points) - len(off.points)
-    assert "filled" not in off.stats and added == sum(on.stats["filled"]) > 0 and "inpainted depth" in on.reason
-    fill = on.points[len(off.points):]
-    assert np.isfinite(fill).all() and np.percentile(np.abs(fill[:, 2] - PLANE_Z), 95) < 0.1
-    # the strips beyond what the middle camera sees (world x outside its +-0.4 +- half-width) are now covered
-    half = PLANE_Z * 40 / 70.0
-    assert (fill[:, 0] < -half + 0.05).sum() > 0 and (fill[:, 0] > half - 0.05).sum() > 0
-    # every stereo-less foreground pixel of a view is within a pixel of a point now: nothing is left uncovered
-    from gsgs_engine.init.mvs import covered_pixels
-
-    small = views[0].camera
-    assert float(covered_pixels(small, on.points).float().mean()) > 0.95
-    # RGBA views (objects on a background): no fill
-    rgba = dense_points([plane_view(x, tex, alpha=True) for x in (-0.4, 0.0, 0.4)],
-                        config=MVSConfig(num_depths=64, fill_stride=2), log=lambda _m: None)
-    assert "filled" not in rgba.stats
-
-
-def test_inpainted_depth_keeps_valid_pixels_and_stays_in_range():
-    import torch
-
-    from gsgs_engine.init.mvs import inpainted_depth
-
-    depth = torch.full((20, 30), 4.0, dtype=torch.float64)
-    depth[:, 15:] = 8.0
-    valid = torch.zeros(20, 30, dtype=torch.bool)
-    valid[5:15, 5:25] = True
-    out = inpainted_depth(depth, valid)
-    assert torch.equal(out[valid], depth[valid]) and torch.isfinite(out).all()
-    assert float(out.min()) >= 4.0 - 1e-5 and float(out.max()) <= 8.0 + 1e-4
-    assert inpainted_depth(depth, torch.zeros_like(valid)) is None  # nothing to fill from
-
-
 def test_textureless_views_fall_back_to_frustum_points():
     views = [plane_view(x, texture(), flat=True) for x in (-0.4, 0.0, 0.4)]
     cfg = MVSConfig(num_depths=16, fallback_points=3000, min_points=100)
@@ -120,8 +80,7 @@ def test_dense_initial_model_gives_gaussians_and_init_info():
     views = [plane_view(x, tex) for x in (-0.4, 0.0, 0.4)]
     scene = Scene(views=views, splits={"train": [0, 1, 2], "test": []}, near=2.0, far=20.0)
     model, info = dense_initial_model(scene, scene.train, sh_degree=1, use_sfm=False,
-                                      config=MVSConfig(num_depths=48, max_points=2000, fill_stride=0),
-                                      log=lambda _m: None)
+                                      config=MVSConfig(num_depths=48, max_points=2000), log=lambda _m: None)
     assert info.method == "mvs" and model.num_gaussians == info.num_points == 2000
 
 
@@ -139,8 +98,6 @@ def test_bad_config_is_refused():
 
     with pytest.raises(GsgsError, match="odd window"):
         MVSConfig(window=4).validate()
-    with pytest.raises(GsgsError, match="fill_stride"):
-        MVSConfig(fill_stride=-1).validate()
 
 
 def test_train_and_export_starts_from_the_dense_model_with_init_mvs(tmp_path, monkeypatch):

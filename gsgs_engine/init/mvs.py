@@ -52,18 +52,12 @@ class MVSConfig:
     max_points: int = 100_000
     min_points: int = 2000  # fewer fused points than this: add the frustum fallback
     fallback_points: int = 20_000
-    # photos (no alpha): every pixel shows some surface, so pixels no fused point covers (seen by one view only,
-    # textureless) get points on this grid (working pixels) at depth inpainted from the view's consistent depth;
-    # 0 = off. RGBA views (object scenes) are left as they are
-    fill_stride: int = 2
     depth_chunk: int = 16  # depth planes warped at once (memory)
     alpha_threshold: float = 0.5  # RGBA views: pixels below this alpha are background, never points
 
     def validate(self) -> "MVSConfig":
         if self.max_side < 16 or self.num_depths < 3 or self.window < 3 or self.window % 2 == 0:
             raise GsgsError(f"mvs: max_side >= 16, num_depths >= 3 and an odd window >= 3 are needed, got {self}")
-        if self.fill_stride < 0:
-            raise GsgsError(f"mvs: fill_stride must be >= 0 (0 = off), got {self.fill_stride}")
         if self.max_points < 1 or (self.min_consistent is not None and self.min_consistent < 0) or self.max_sources < 1:
             raise GsgsError(f"mvs: max_points >= 1, min_consistent >= 0 and max_sources >= 1 are needed, got {self}")
         return self
@@ -313,56 +307,6 @@ def frustum_points(views: list[_WorkView], n: int, generator: torch.Generator) -
     return np.concatenate(pts).astype(np.float32), np.concatenate(cols).astype(np.float32)
 
 
-def covered_pixels(cam: Camera, points: np.ndarray) -> torch.Tensor:
-    """(H, W) bool: pixels of `cam` that a point lands in, or a neighbour of one (3x3)."""
-    hit = torch.zeros(cam.height * cam.width, dtype=torch.float32)
-    if len(points):
-        u, v, z = _project(cam, torch.from_numpy(np.asarray(points, dtype=np.float64)))
-        ok = torch.isfinite(z) & (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        idx = (v[ok].long() * cam.width + u[ok].long())
-        hit[idx] = 1.0
-    hit = F.max_pool2d(hit.reshape(1, 1, cam.height, cam.width), 3, stride=1, padding=1)
-    return hit.reshape(cam.height, cam.width) > 0
-
-
-def inpainted_depth(depth: torch.Tensor, valid: torch.Tensor) -> torch.Tensor | None:
-    """`depth` (H, W) with the pixels outside `valid` filled from the valid ones around them (OpenCV Telea on
-    inverse depth, clipped to the valid range); None when no pixel is valid."""
-    import cv2
-
-    if not bool(valid.any()):
-        return None
-    inv = torch.where(valid, 1.0 / depth, torch.zeros_like(depth)).numpy().astype(np.float32)
-    filled = cv2.inpaint(inv, (~valid).numpy().astype(np.uint8) * 255, 5, cv2.INPAINT_TELEA)
-    lo, hi = float(inv[valid.numpy()].min()), float(inv[valid.numpy()].max())
-    out = 1.0 / torch.from_numpy(np.clip(filled, lo, hi)).double()
-    return torch.where(valid, depth.double(), out)
-
-
-def uncovered_points(views: list[_WorkView], depths: list[torch.Tensor], keeps: list[torch.Tensor],
-                     points: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
-    """Points for the foreground pixels of each view that no fused point covers, on a `stride` grid, at the
-    depth inpainted from that view's consistent pixels, coloured by the pixel (and the count per view)."""
-    pts, cols, counts = [], [], []
-    for view, depth, keep in zip(views, depths, keeps):
-        cam = view.camera
-        filled = inpainted_depth(depth, keep)
-        if filled is None:
-            counts.append(0)
-            continue
-        grid = torch.zeros(cam.height, cam.width, dtype=torch.bool)
-        grid[stride // 2::stride, stride // 2::stride] = True
-        want = (grid & view.mask & ~covered_pixels(cam, points)).reshape(-1)
-        world = _backproject(cam, torch.where(want.reshape(cam.height, cam.width), filled,
-                                              torch.full_like(filled, float("nan"))))[want]
-        pts.append(world.float().numpy())
-        cols.append(view.rgb.reshape(-1, 3)[want].numpy())
-        counts.append(int(want.sum()))
-    if not pts:
-        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32), counts
-    return np.concatenate(pts), np.concatenate(cols), counts
-
-
 def dense_points(train_views: list, sparse_points: np.ndarray | None = None, near: float | None = None,
                  far: float | None = None, bounds: tuple[np.ndarray, np.ndarray] | None = None,
                  config: MVSConfig | None = None, seed: int = 0,
@@ -392,11 +336,9 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
                 f"of {depth.numel()} (depth {view.near:.3g}..{view.far:.3g}, {time.perf_counter() - t0:.1f} s)")
         need = cfg.min_consistent if cfg.min_consistent is not None else (1 if len(views) < 5 else 2)
         stats["min_consistent"] = need
-        keeps = []
         for i, view in enumerate(views):
             count = consistent_views(i, depths, views, cfg)
             keep = torch.isfinite(depths[i]) & (count >= need)
-            keeps.append(keep)
             flat = keep.reshape(-1)
             pts_all.append(_backproject(view.camera, depths[i])[flat].float().numpy())
             cols_all.append(view.rgb.reshape(-1, 3)[flat].numpy())
@@ -411,13 +353,6 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
         points, colors = points[pick], colors[pick]
     method, reason = "mvs", (f"{len(points)} multi-view-stereo points from the {len(views)} training views "
                              f"({n_mvs} geometrically consistent at {views[0].camera.width}x{views[0].camera.height})")
-    photos = all(bool(v.mask.all()) for v in views)
-    if cfg.fill_stride > 0 and photos and len(views) >= 2 and len(points) >= cfg.min_points:
-        fp, fc, per_view = uncovered_points(views, depths, keeps, points, cfg.fill_stride)
-        points, colors = np.concatenate([points, fp]), np.concatenate([colors, fc])
-        stats["filled"] = per_view
-        reason += (f"; {len(fp)} points at inpainted depth on the pixels no stereo point covers "
-                   f"(every {cfg.fill_stride} px)")
     if len(points) < cfg.min_points:
         fp, fc = frustum_points(views, cfg.fallback_points, generator)
         why = f"stereo kept {len(points)} points (< {cfg.min_points})" if len(views) >= 2 else "one view: no stereo"
