@@ -81,6 +81,7 @@ PRIOR = {
     "geo_loss": Rule("bool"),
     "jitter": Rule("float", 0, 10, flag="--pseudo-jitter"),
     "reach": Rule("float", 0, 100, flag="--pseudo-reach"),
+    "warp_tolerance": Rule("float", 0, 10, lo_open=True, flag="--warp-tolerance"),
     "diffusion_model": Rule("str", allow_none=True, flag="--diffusion-model"),
     "depth_adapter": Rule("str", allow_none=True, flag="--depth-adapter"),
     "device": Rule("str", flag="--device"),

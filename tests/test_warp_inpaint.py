@@ -94,3 +94,18 @@ def test_fill_empty_depth_extends_the_surface_and_keeps_known_depth():
     assert torch.isfinite(filled).all() and (filled[:, 20:] >= 4.0).all() and (filled[:, 20:] <= 6.0).all()
     assert filled[:5, 25].mean() > filled[-5:, 25].mean()  # nearer the 6.0 rows, deeper
     assert torch.equal(fill_empty_depth(torch.zeros(4, 4)), torch.zeros(4, 4))  # nothing to fill from
+
+
+def test_visibility_tolerance_decides_which_photo_pixels_count_and_reaches_the_prior_settings():
+    from gsgs_engine.priors.config import PriorConfig, prior_config_from_settings, resolve_prior_plan
+
+    cam = _cam([0.0, 0.0, -4.0], w=32, h=24)
+    img, depth = _plane_view(cam, _texture)
+    alpha = torch.ones_like(depth)
+    off_by_8 = TrainingPhoto(cam, img, depth * 1.08)  # the photo's rendered depth is 8 % off
+    _, strict = warp_inpaint(cam, torch.ones_like(img), depth, alpha, [off_by_8], rel_tolerance=0.05)
+    _, loose = warp_inpaint(cam, torch.ones_like(img), depth, alpha, [off_by_8], rel_tolerance=0.1)
+    assert strict["warped"] == 0.0 and loose["warped"] == 1.0
+    cfg = prior_config_from_settings({"prior": "warp", "prior_settings": {"warp_tolerance": 0.1}})
+    assert cfg.warp_tolerance == 0.1 and resolve_prior_plan(cfg, 3)["warp_tolerance"] == 0.1
+    assert PriorConfig().warp_tolerance == 0.05

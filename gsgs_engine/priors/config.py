@@ -32,6 +32,9 @@ class PriorConfig:
     # forward-facing rigs: half the pseudo views on a ring of reach x the rig's radius (0 = none). 5: LLFF protocol,
     # seed 0 (docs/sparse_techniques.md): flower 20.58 -> 20.83 dB against 3, horns 20.11 -> 20.05
     reach: float = 5.0
+    # warp-inpaint: a photo colours a pseudo-view pixel when its own rendered depth there agrees within this
+    # fraction of the depth (visibility); the other covered pixels are inpainted
+    warp_tolerance: float = 0.05
     diffusion_model: str | None = None
     depth_adapter: str | None = None
     diffusion: dict = field(default_factory=dict)  # DiffusionSettings overrides (steps, strength, ...)
@@ -93,7 +96,7 @@ def resolve_prior_plan(cfg: PriorConfig, num_train_views: int, sparse_points: in
             "rounds": cfg.rounds if generator else 0, "warmup_fraction": cfg.warmup_fraction,
             "pseudo_weight": cfg.pseudo_weight, "lambda_reg": cfg.lambda_reg if depth_source else 0.0,
             "geo_loss": bool(cfg.geo_loss and generator == "diffusion"), "jitter": cfg.jitter,
-            "reach": cfg.reach,
+            "reach": cfg.reach, "warp_tolerance": cfg.warp_tolerance,
             "depth_convention": "inverse depth (rendered 1/z vs estimated relative inverse depth)"}
 
 
@@ -115,6 +118,8 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--pseudo-reach", type=float, default=PriorConfig.reach,
                    help="forward-facing rigs: half the pseudo views on a ring of this many rig radii around the "
                         "cameras, past the rig's edges (0 = all between neighbouring cameras)")
+    g.add_argument("--warp-tolerance", type=float, default=PriorConfig.warp_tolerance,
+                   help="warp-inpaint: relative depth agreement for a training photo to colour a pseudo-view pixel")
     g.add_argument("--diffusion-model", default=None, help="local Stable Diffusion 1.5 folder (diffusers layout)")
     g.add_argument("--depth-adapter", default=None, help="local depth T2I-Adapter folder")
     g.add_argument("--diffusion-strength", type=float, default=0.6,
@@ -134,7 +139,8 @@ def prior_config_from_args(args) -> PriorConfig:
     return PriorConfig(prior=args.prior, depth_source=args.depth_source, num_pseudo=args.pseudo_views,
                        rounds=args.rounds, warmup_fraction=args.warmup_fraction, pseudo_weight=args.pseudo_weight,
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
-                       jitter=args.pseudo_jitter, reach=args.pseudo_reach, diffusion_model=args.diffusion_model,
+                       jitter=args.pseudo_jitter, reach=args.pseudo_reach,
+                       warp_tolerance=args.warp_tolerance, diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
                        techniques=techniques_list(getattr(args, "techniques", None), "--techniques"),
                        diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,

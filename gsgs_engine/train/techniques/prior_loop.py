@@ -248,7 +248,7 @@ class PriorLoop(Technique):
         images, cover = [], []
         for p, out in zip(self.pseudo, renders):
             img, s = warp_inpaint(p.camera, out.color, out.depth, out.alpha, _same_moment(photos, p.camera),
-                                  fill_empty=self.fill_empty)
+                                  rel_tolerance=self.cfg.warp_tolerance, fill_empty=self.fill_empty)
             images.append(img)
             cover.append(s)
         stats["warped_fraction"] = float(np.mean([s["warped"] for s in cover])) if cover else 0.0
