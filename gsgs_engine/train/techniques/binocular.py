@@ -50,13 +50,10 @@ DEFAULT_START_FRACTION = 0.6
 MIN_OPAQUE = 0.5  # a training pixel takes part where the rendered alpha says a surface is there
 
 
-def shifted_camera(camera: Camera, baseline: float, angle: float = 0.0) -> Camera:
-    """`camera` moved by `baseline` along its own x axis (x_cam' = x_cam - (b, 0, 0)), or, with `angle`
-    (radians from x towards y), along that direction of its image plane; same intrinsics."""
-    step = baseline * np.array([np.cos(angle), np.sin(angle), 0.0])
-    t = np.asarray(camera.t, dtype=np.float64) - step
-    suffix = f"@x{baseline:+.4g}" if angle == 0.0 else f"@{baseline:+.4g}<{np.degrees(angle):.0f}"
-    return replace(camera, t=t, name=f"{camera.name}{suffix}")
+def shifted_camera(camera: Camera, baseline: float) -> Camera:
+    """`camera` moved by `baseline` along its own x axis (x_cam' = x_cam - (b, 0, 0)); same intrinsics."""
+    t = np.asarray(camera.t, dtype=np.float64) - np.array([baseline, 0.0, 0.0])
+    return replace(camera, t=t, name=f"{camera.name}@x{baseline:+.4g}")
 
 
 def surface_depth(depth: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
@@ -121,12 +118,7 @@ class BinocularConsistency(Technique):
 
     def __init__(self, weight: float = DEFAULT_WEIGHT, smooth_weight: float = DEFAULT_SMOOTH_WEIGHT,
                  baseline_fraction: float = DEFAULT_BASELINE_FRACTION, start_fraction: float = DEFAULT_START_FRACTION,
-                 max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION,
-                 direction: str = "x"):
-        if direction not in ("x", "xy"):
-            raise GsgsError(f"binocular: direction must be x (the camera's own x axis, as the paper) or xy (a random "
-                            f"direction of the image plane), got {direction!r}")
-        self.direction = direction
+                 max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION):
         if weight < 0 or smooth_weight < 0:
             raise GsgsError(f"binocular: weights must be >= 0 (got {weight}, {smooth_weight})")
         if not 0.0 <= start_fraction < 1.0:
@@ -162,10 +154,8 @@ class BinocularConsistency(Technique):
         tr = ctx.trainer
         u = torch.rand(2, generator=tr.torch_gen)
         baseline = float(u[0]) * self.max_baseline * (1.0 if float(u[1]) < 0.5 else -1.0)
-        # xy: a random direction over a half turn (the sign above covers the other half)
-        angle = float(torch.rand(1, generator=tr.torch_gen)) * np.pi if self.direction == "xy" else 0.0
         camera = tr.train_views[ctx.view_index].camera
-        shifted = shifted_camera(camera, baseline, angle)
+        shifted = shifted_camera(camera, baseline)
         out = tr.render_for_training(ctx, shifted, ctx.background)
         z = surface_depth(ctx.render.depth, ctx.render.alpha)
         warped, valid = warp_shifted_to_view(camera, z, shifted, out.color)
@@ -191,7 +181,6 @@ class BinocularConsistency(Technique):
 
     def report(self) -> dict:
         return {"weight": self.weight, "smooth_weight": self.smooth_weight, "max_baseline": self.max_baseline,
-                "direction": self.direction,
                 "baseline_fraction": self.baseline_fraction, "scene_depth": self.scene_depth,
                 "rig_baseline": self.rig_baseline, "rig_fraction": self.rig_fraction,
                 "start_step": self.start, "steps": self.steps, "last_valid_fraction": round(self.last_valid, 4)}
