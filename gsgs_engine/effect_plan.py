@@ -447,8 +447,8 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
     # initialisation: dense multi-view stereo of the training views where --prior auto runs the recipe
     if train_config.init != "auto":
         effects["init"] = Effect("init", train_config.init == "mvs", train_config.init, "--init", "user")
-    elif effects["techniques"].enabled and (effects["techniques"].source == "auto" or requested == "auto"):
-        # also when the techniques are named (e.g. one option changed): --prior auto keeps its dense init
+    elif effects["techniques"].enabled and requested == "auto":
+        # the recipe's techniques, or named ones (e.g. one option changed): --prior auto keeps its dense init
         effects["init"] = Effect("init", True, "mvs", "sparse static views under --prior auto: " + MVS_MEASURED)
     else:
         effects["init"] = Effect("init", False, "auto", "SfM points of the training views (else the source's "

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from gsgs_engine.cameras import Camera
+from gsgs_engine.priors.config import PriorConfig
 from gsgs_engine.priors.warp import backward_warp
 
 COVERED_ALPHA = 0.5
@@ -65,7 +66,7 @@ def fill_empty_depth(z: torch.Tensor, radius: int = 5) -> torch.Tensor:
 
 
 def warp_inpaint(camera: Camera, render: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor,
-                 photos: list[TrainingPhoto], rel_tolerance: float = 0.05, fill_empty: bool = False
+                 photos: list[TrainingPhoto], rel_tolerance: float = PriorConfig.warp_tolerance, fill_empty: bool = False
                  ) -> tuple[torch.Tensor, dict]:
     """A pseudo-view image (H, W, 3) from the training photos; returns it with coverage statistics.
 
