@@ -76,6 +76,7 @@ PRIOR = {
     "rounds": Rule("int", 0, 100, flag="--rounds"),
     "warmup_fraction": Rule("float", 0, 1, flag="--warmup-fraction"),
     "pseudo_weight": Rule("float", 0, 100, flag="--pseudo-weight"),
+    "ring_weight": Rule("float", 0, 100, allow_none=True, flag="--ring-weight"),
     "lambda_reg": Rule("float", 0, 100, flag="--lambda-reg"),
     "depth_reg": Rule("bool"),
     "geo_loss": Rule("bool"),

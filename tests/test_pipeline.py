@@ -202,3 +202,36 @@ def test_prior_flags_reach_the_config_and_the_plan():
     assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 5.0
     plan = resolve_prior_plan(cfg, 3)
     assert plan["reach"] == 2.5 and plan["pseudo_views"] == 6
+
+
+def test_ring_views_take_their_own_loss_weight(tmp_path):
+    import numpy as np
+
+    from gsgs_engine.io.scene import Scene, View
+    from gsgs_engine.train.techniques.prior_loop import PriorLoop
+    from test_trainer import ground_truth_gaussians, look_at, make_trainer, render_ground_truth
+
+    # a forward-facing rig: three cameras side by side, parallel axes, the content 4 units ahead
+    gt = ground_truth_gaussians()
+    cams = [look_at((x, -4.0, 0.0), (x, 0.0, 0.0), name=f"f{k}") for k, x in enumerate((-0.4, 0.0, 0.4, 0.2))]
+    views = [View(camera=c, image_path=None, loader=lambda img=render_ground_truth(gt, c): img) for c in cams]
+    pts = np.concatenate([gt["means"].numpy()] * 3)
+    scene = Scene(views=views, splits={"train": [0, 1, 2], "test": [3]}, source="synthetic", format="test",
+                  points=pts, point_colors=np.full((len(pts), 3), 0.5, np.float32))
+    trainer = make_trainer(scene, iters=40, backend="reference", sh_degree=0)
+    trainer.setup()
+    prior = PriorConfig(prior="warp", num_pseudo=4, rounds=1, depth_reg=False, pseudo_weight=0.1, ring_weight=0.3)
+    plan = resolve_prior_plan(prior, 3)
+    assert plan["pseudo_weight"] == 0.1 and plan["ring_weight"] == 0.3
+    loop = PriorLoop(prior, plan, tmp_path, log=lambda m: None)
+    trainer.add_technique(loop)
+    sources = [p.source for p in loop.pseudo]
+    assert sources.count("surrounding") == 2 and sources.count("interpolated") == 2  # a forward-facing rig
+    loop.run_round()
+    weights = {v.name: v.weight for v in loop.supervision.views}
+    for p in loop.pseudo:
+        if p.name in weights:
+            assert weights[p.name] == (0.3 if p.source == "surrounding" else 0.1)
+    assert set(weights.values()) == {0.1, 0.3}
+    # unset, the ring shares the pseudo weight
+    assert resolve_prior_plan(PriorConfig(prior="warp", pseudo_weight=0.2), 3)["ring_weight"] == 0.2

@@ -28,6 +28,8 @@ class PriorConfig:
     # 20.18 / 20.36 at 0.5 / 0.25 / 0.1 (1.0: 20.78 and 19.78). The targets are worse than the render inside the
     # rig and far better beside it; a light weight keeps the second without much of the first
     pseudo_weight: float = 0.1
+    # loss weight of the ring's pseudo views (forward-facing rigs, see `reach`); None: pseudo_weight
+    ring_weight: float | None = None
     lambda_reg: float = 0.1  # weight of L_reg (eq. 10, 11)
     depth_reg: bool = True
     geo_loss: bool = True
@@ -98,7 +100,9 @@ def resolve_prior_plan(cfg: PriorConfig, num_train_views: int, sparse_points: in
     return {**plan, "prior": cfg.prior if cfg.prior != "auto" else f"auto:{generator}", "generator": generator,
             "depth_source": depth_source, "depth_source_reason": why, "pseudo_views": pseudo,
             "rounds": cfg.rounds if generator else 0, "warmup_fraction": cfg.warmup_fraction,
-            "pseudo_weight": cfg.pseudo_weight, "lambda_reg": cfg.lambda_reg if depth_source else 0.0,
+            "pseudo_weight": cfg.pseudo_weight,
+            "ring_weight": cfg.pseudo_weight if cfg.ring_weight is None else cfg.ring_weight,
+            "lambda_reg": cfg.lambda_reg if depth_source else 0.0,
             "geo_loss": bool(cfg.geo_loss and generator == "diffusion"), "jitter": cfg.jitter,
             "reach": cfg.reach, "warp_tolerance": cfg.warp_tolerance,
             "depth_convention": "inverse depth (rendered 1/z vs estimated relative inverse depth)"}
@@ -113,6 +117,9 @@ def add_prior_arguments(parser) -> None:
                    help="share of the iterations trained on the real views before the first round")
     g.add_argument("--pseudo-weight", type=float, default=PriorConfig.pseudo_weight,
                    help="loss weight of a pseudo view relative to a real one")
+    g.add_argument("--ring-weight", type=float, default=PriorConfig.ring_weight,
+                   help="loss weight of the pseudo views on the ring past a forward-facing rig's edges "
+                        "(default: --pseudo-weight)")
     g.add_argument("--lambda-reg", type=float, default=PriorConfig.lambda_reg, help="weight of the depth term (eq. 10)")
     g.add_argument("--depth-source", default="auto",
                    help="auto | none | sparse | a local depth-estimation model folder (DPT layout)")
@@ -142,6 +149,7 @@ def add_prior_arguments(parser) -> None:
 def prior_config_from_args(args) -> PriorConfig:
     return PriorConfig(prior=args.prior, depth_source=args.depth_source, num_pseudo=args.pseudo_views,
                        rounds=args.rounds, warmup_fraction=args.warmup_fraction, pseudo_weight=args.pseudo_weight,
+                       ring_weight=args.ring_weight,
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
                        jitter=args.pseudo_jitter, reach=args.pseudo_reach,
                        warp_tolerance=args.warp_tolerance, diffusion_model=args.diffusion_model,

@@ -228,9 +228,10 @@ class PriorLoop(Technique):
         stats["pseudo_views_used"] = int(sum(keep))
         stats["pseudo_views_skipped_low_coverage"] = len(keep) - int(sum(keep))
         self.active = [j for j, k in enumerate(keep) if k]
-        self.supervision.set_views([PseudoView(camera=self.pseudo[j].camera, image=images[j], weight=self.cfg.pseudo_weight,
-                                               name=self.pseudo[j].name, nearest_train=self.pseudo[j].nearest_train)
-                             for j in self.active])
+        self.supervision.set_views([PseudoView(camera=self.pseudo[j].camera, image=images[j],
+                                               weight=self.pseudo_weight(self.pseudo[j]), name=self.pseudo[j].name,
+                                               nearest_train=self.pseudo[j].nearest_train)
+                                    for j in self.active])
         if self.depth is not None:
             self.depth.set_pseudo_depth([self.pseudo_depth[j] for j in self.active])
         tr.phase_seconds["prior_generate"] += time.perf_counter() - t2
@@ -241,6 +242,12 @@ class PriorLoop(Technique):
         self.log(f"prior round {k + 1}/{len(self.steps)} at step {tr.step}: {len(images)} pseudo views "
                  f"({self.plan['generator']}, {time.perf_counter() - t0:.1f} s)"
                  + (f", {seeded} Gaussians seeded where they showed nothing" if seeded else ""))
+
+    def pseudo_weight(self, view) -> float:
+        """Loss weight of one pseudo view: the ring's views past a forward-facing rig may have their own."""
+        if view.source == "surrounding" and self.cfg.ring_weight is not None:
+            return float(self.cfg.ring_weight)
+        return float(self.cfg.pseudo_weight)
 
     def _warp_round(self, photos, renders, stats) -> list[torch.Tensor]:
         from gsgs_engine.priors.warp_inpaint import warp_inpaint
