@@ -200,6 +200,8 @@ def test_prior_flags_reach_the_config_and_the_plan():
     cfg = prior_config_from_args(parser.parse_args(["--prior", "warp", "--pseudo-reach", "2.5", "--pseudo-views", "6"]))
     assert (cfg.prior, cfg.reach, cfg.num_pseudo) == ("warp", 2.5, 6)
     assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 5.0
+    assert prior_config_from_args(parser.parse_args(["--ring-weight", "0.3"])).ring_weight == 0.3
+    assert prior_config_from_args(parser.parse_args([])).ring_weight is None
     plan = resolve_prior_plan(cfg, 3)
     assert plan["reach"] == 2.5 and plan["pseudo_views"] == 6
 
