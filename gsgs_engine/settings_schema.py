@@ -77,6 +77,7 @@ PRIOR = {
     "warmup_fraction": Rule("float", 0, 1, flag="--warmup-fraction"),
     "pseudo_weight": Rule("float", 0, 100, flag="--pseudo-weight"),
     "ring_weight": Rule("float", 0, 100, allow_none=True, flag="--ring-weight"),
+    "pseudo_every": Rule("int", 1, 1_000_000),
     "lambda_reg": Rule("float", 0, 100, flag="--lambda-reg"),
     "depth_reg": Rule("bool"),
     "geo_loss": Rule("bool"),

@@ -188,6 +188,8 @@ JOB_CASES = [
     ({"prior_settings": {"num_pseudo": -3}}, "num_pseudo must be at least 0"),
     ({"resolution_scale": 1e6}, "resolution_scale must be at most 4"),
     ({"prior_settings": {"pseudo_weight": float("nan")}}, "pseudo_weight must be a finite number"),
+    ({"prior_settings": {"pseudo_every": 0}}, "pseudo_every must be at least 1"),
+    ({"prior_settings": {"ring_weight": -0.5}}, "ring_weight must be at least 0"),
 ]
 
 
