@@ -78,6 +78,7 @@ PRIOR = {
     "pseudo_weight": Rule("float", 0, 100, flag="--pseudo-weight"),
     "ring_weight": Rule("float", 0, 100, allow_none=True, flag="--ring-weight"),
     "pseudo_every": Rule("int", 1, 1_000_000),
+    "ring_fraction": Rule("float", 0, 1, flag="--ring-fraction"),
     "lambda_reg": Rule("float", 0, 100, flag="--lambda-reg"),
     "depth_reg": Rule("bool"),
     "geo_loss": Rule("bool"),

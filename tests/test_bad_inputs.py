@@ -190,6 +190,7 @@ JOB_CASES = [
     ({"prior_settings": {"pseudo_weight": float("nan")}}, "pseudo_weight must be a finite number"),
     ({"prior_settings": {"pseudo_every": 0}}, "pseudo_every must be at least 1"),
     ({"prior_settings": {"ring_weight": -0.5}}, "ring_weight must be at least 0"),
+    ({"prior_settings": {"ring_fraction": 1.5}}, "ring_fraction must be at most 1"),
 ]
 
 

@@ -202,6 +202,7 @@ def test_prior_flags_reach_the_config_and_the_plan():
     assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 5.0
     assert prior_config_from_args(parser.parse_args(["--ring-weight", "0.3"])).ring_weight == 0.3
     assert prior_config_from_args(parser.parse_args([])).ring_weight is None
+    assert prior_config_from_args(parser.parse_args(["--ring-fraction", "1"])).ring_fraction == 1.0
     plan = resolve_prior_plan(cfg, 3)
     assert plan["reach"] == 2.5 and plan["pseudo_views"] == 6
 
@@ -237,3 +238,10 @@ def test_ring_views_take_their_own_loss_weight(tmp_path):
     assert set(weights.values()) == {0.1, 0.3}
     # unset, the ring shares the pseudo weight
     assert resolve_prior_plan(PriorConfig(prior="warp", pseudo_weight=0.2), 3)["ring_weight"] == 0.2
+    # the ring's share of the pseudo views
+    for fraction, ring in ((1.0, 4), (0.0, 0), (0.3, 1)):
+        prior = PriorConfig(prior="warp", num_pseudo=4, rounds=1, depth_reg=False, ring_fraction=fraction)
+        loop = PriorLoop(prior, resolve_prior_plan(prior, 3), tmp_path, log=lambda m: None)
+        trainer.techniques = [t for t in trainer.techniques if t.name not in ("gsgs_prior", "pseudo_views")]
+        trainer.add_technique(loop)
+        assert [p.source for p in loop.pseudo].count("surrounding") == ring and len(loop.pseudo) == 4

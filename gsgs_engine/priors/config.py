@@ -38,6 +38,7 @@ class PriorConfig:
     # forward-facing rigs: half the pseudo views on a ring of reach x the rig's radius (0 = none). 5: LLFF protocol,
     # seed 0 (docs/sparse_techniques.md): flower 20.58 -> 20.83 dB against 3, horns 20.11 -> 20.05
     reach: float = 5.0
+    ring_fraction: float = 0.5  # forward-facing rigs: the share of the pseudo views on that ring
     # warp-inpaint: a photo colours a pseudo-view pixel when its own rendered depth there agrees within this
     # fraction of the depth (visibility); the other covered pixels are inpainted
     warp_tolerance: float = 0.05
@@ -104,7 +105,7 @@ def resolve_prior_plan(cfg: PriorConfig, num_train_views: int, sparse_points: in
             "ring_weight": cfg.pseudo_weight if cfg.ring_weight is None else cfg.ring_weight,
             "lambda_reg": cfg.lambda_reg if depth_source else 0.0,
             "geo_loss": bool(cfg.geo_loss and generator == "diffusion"), "jitter": cfg.jitter,
-            "reach": cfg.reach, "warp_tolerance": cfg.warp_tolerance,
+            "reach": cfg.reach, "ring_fraction": cfg.ring_fraction, "warp_tolerance": cfg.warp_tolerance,
             "depth_convention": "inverse depth (rendered 1/z vs estimated relative inverse depth)"}
 
 
@@ -129,6 +130,8 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--pseudo-reach", type=float, default=PriorConfig.reach,
                    help="forward-facing rigs: half the pseudo views on a ring of this many rig radii around the "
                         "cameras, past the rig's edges (0 = all between neighbouring cameras)")
+    g.add_argument("--ring-fraction", type=float, default=PriorConfig.ring_fraction,
+                   help="forward-facing rigs: the share of the pseudo views on the ring (the rest between cameras)")
     g.add_argument("--warp-tolerance", type=float, default=PriorConfig.warp_tolerance,
                    help="warp-inpaint: relative depth agreement for a training photo to colour a pseudo-view pixel")
     g.add_argument("--diffusion-model", default=None, help="local Stable Diffusion 1.5 folder (diffusers layout)")
@@ -151,7 +154,7 @@ def prior_config_from_args(args) -> PriorConfig:
                        rounds=args.rounds, warmup_fraction=args.warmup_fraction, pseudo_weight=args.pseudo_weight,
                        ring_weight=args.ring_weight,
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
-                       jitter=args.pseudo_jitter, reach=args.pseudo_reach,
+                       jitter=args.pseudo_jitter, reach=args.pseudo_reach, ring_fraction=args.ring_fraction,
                        warp_tolerance=args.warp_tolerance, diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
                        techniques=techniques_list(getattr(args, "techniques", None), "--techniques"),
