@@ -202,7 +202,7 @@ def test_prior_flags_reach_the_config_and_the_plan():
     assert prior_config_from_args(parser.parse_args([])).reach == PriorConfig.reach == 5.0
     assert prior_config_from_args(parser.parse_args(["--ring-weight", "0.3"])).ring_weight == 0.3
     assert prior_config_from_args(parser.parse_args([])).ring_weight is None
-    assert prior_config_from_args(parser.parse_args(["--ring-fraction", "1"])).ring_fraction == 1.0
+    assert prior_config_from_args(parser.parse_args(["--ring-fraction", "0.5"])).ring_fraction == 0.5
     plan = resolve_prior_plan(cfg, 3)
     assert plan["reach"] == 2.5 and plan["pseudo_views"] == 6
 
@@ -223,7 +223,8 @@ def test_ring_views_take_their_own_loss_weight(tmp_path):
                   points=pts, point_colors=np.full((len(pts), 3), 0.5, np.float32))
     trainer = make_trainer(scene, iters=40, backend="reference", sh_degree=0)
     trainer.setup()
-    prior = PriorConfig(prior="warp", num_pseudo=4, rounds=1, depth_reg=False, pseudo_weight=0.1, ring_weight=0.3)
+    prior = PriorConfig(prior="warp", num_pseudo=4, rounds=1, depth_reg=False, pseudo_weight=0.1, ring_weight=0.3,
+                        ring_fraction=0.5)
     plan = resolve_prior_plan(prior, 3)
     assert plan["pseudo_weight"] == 0.1 and plan["ring_weight"] == 0.3
     loop = PriorLoop(prior, plan, tmp_path, log=lambda m: None)

@@ -38,7 +38,10 @@ class PriorConfig:
     # forward-facing rigs: half the pseudo views on a ring of reach x the rig's radius (0 = none). 5: LLFF protocol,
     # seed 0 (docs/sparse_techniques.md): flower 20.58 -> 20.83 dB against 3, horns 20.11 -> 20.05
     reach: float = 5.0
-    ring_fraction: float = 0.5  # forward-facing rigs: the share of the pseudo views on that ring
+    # forward-facing rigs: the share of the pseudo views on that ring (the rest between cameras). 1.0: LLFF protocol
+    # (docs/sparse_techniques.md), seed 0 flower 20.87 -> 20.91, horns 20.36 -> 20.46 dB against 0.5; 3 seeds in
+    # docs/sparse_bench.md
+    ring_fraction: float = 1.0
     # warp-inpaint: a photo colours a pseudo-view pixel when its own rendered depth there agrees within this
     # fraction of the depth (visibility); the other covered pixels are inpainted
     warp_tolerance: float = 0.05

@@ -143,9 +143,9 @@ class PriorLoop(Technique):
                                                  seed=trainer.config.seed)
         elif self.plan["generator"]:
             focus = orbit_focus(cams)
-            # forward-facing rigs: half the views on a ring past the rig's edges, the other half between
-            # neighbouring cameras. (Orbits: all between neighbours; views placed in an orbit's widest gaps
-            # measured worse on lego_200, 21.65 vs 22.02 dB: warps across those gaps are too far off.)
+            # forward-facing rigs: `ring_fraction` of the views (default all) on a ring past the rig's edges, the
+            # rest between neighbouring cameras. (Orbits: all between neighbours; views placed in an orbit's widest
+            # gaps measured worse on lego_200, 21.65 vs 22.02 dB: warps across those gaps are too far off.)
             ring = (int(self.cfg.num_pseudo * self.cfg.ring_fraction + 1e-9) if (focus is None and self.cfg.reach > 0)
                     else 0)
             self.pseudo = interpolated_pseudo_views(cams, self.cfg.num_pseudo - ring, self.cfg.jitter,
