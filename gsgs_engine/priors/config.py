@@ -35,8 +35,8 @@ class PriorConfig:
     geo_loss: bool = True
     jitter: float = 0.0
     pseudo_every: int = 1  # a pseudo view is rendered and supervised every this many steps
-    # forward-facing rigs: half the pseudo views on a ring of reach x the rig's radius (0 = none). 5: LLFF protocol,
-    # seed 0 (docs/sparse_techniques.md): flower 20.58 -> 20.83 dB against 3, horns 20.11 -> 20.05
+    # forward-facing rigs: `ring_fraction` of the pseudo views on a ring of reach x the rig's radius (0 = none).
+    # 5: LLFF protocol, seed 0 (docs/sparse_techniques.md): flower 20.58 -> 20.83 dB against 3, horns 20.11 -> 20.05
     reach: float = 5.0
     # forward-facing rigs: the share of the pseudo views on that ring (the rest between cameras). 1.0: LLFF protocol
     # (docs/sparse_techniques.md), seed 0 flower 20.87 -> 20.91, horns 20.36 -> 20.46 dB against 0.5; 3 seeds in
@@ -131,8 +131,8 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--no-geo-loss", action="store_true", help="disable the geometry-aware LoRA loss (ablation)")
     g.add_argument("--pseudo-jitter", type=float, default=0.0, help="relative jitter of the pseudo poses")
     g.add_argument("--pseudo-reach", type=float, default=PriorConfig.reach,
-                   help="forward-facing rigs: half the pseudo views on a ring of this many rig radii around the "
-                        "cameras, past the rig's edges (0 = all between neighbouring cameras)")
+                   help="forward-facing rigs: --ring-fraction of the pseudo views on a ring of this many rig radii "
+                        "around the cameras, past the rig's edges (0 = all between neighbouring cameras)")
     g.add_argument("--ring-fraction", type=float, default=PriorConfig.ring_fraction,
                    help="forward-facing rigs: the share of the pseudo views on the ring (the rest between cameras)")
     g.add_argument("--warp-tolerance", type=float, default=PriorConfig.warp_tolerance,
