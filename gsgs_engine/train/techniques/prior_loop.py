@@ -245,10 +245,9 @@ class PriorLoop(Technique):
                  + (f", {seeded} Gaussians seeded where they showed nothing" if seeded else ""))
 
     def pseudo_weight(self, view) -> float:
-        """Loss weight of one pseudo view: the ring's views past a forward-facing rig may have their own."""
-        if view.source == "surrounding" and self.cfg.ring_weight is not None:
-            return float(self.cfg.ring_weight)
-        return float(self.cfg.pseudo_weight)
+        """Loss weight of one pseudo view: the ring's views past a forward-facing rig may have their own (the plan's
+        "ring_weight", which is the pseudo weight unless set)."""
+        return float(self.plan["ring_weight" if view.source == "surrounding" else "pseudo_weight"])
 
     def _warp_round(self, photos, renders, stats) -> list[torch.Tensor]:
         from gsgs_engine.priors.warp_inpaint import warp_inpaint
