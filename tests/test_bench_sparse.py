@@ -79,3 +79,36 @@ def test_cell_seconds_never_undercount_the_loop_and_command_line_is_the_users():
     assert cell_numbers({"train_seconds": 10.0})["seconds"] is None
     assert _own_arguments(["bench", "sparse", "--seeds", "1"]) == ["--seeds", "1"]
     assert _own_arguments(["--seeds", "1"]) == ["--seeds", "1"]
+
+
+def test_named_ablation_set_reuses_the_grid_cells_and_every_setting_passes_the_job_schema():
+    from gsgs_engine.bench.sparse import ABLATION, VARIANTS
+    from gsgs_engine.settings_schema import check_settings
+    from gsgs_engine.train.techniques.catalogue import TECHNIQUES
+
+    ablation = load_variants("ablation")
+    assert ablation == ABLATION and load_variants("default") == VARIANTS
+    # the grid's two variants under the same names and settings: their finished cells are not trained again
+    assert all(ablation[name] == settings for name, settings in VARIANTS.items())
+    alone = {t for s in ablation.values() for t in s.get("techniques", [])}
+    assert alone == set(TECHNIQUES)  # every technique of the catalogue, each alone on the dense init
+    for name, settings in ablation.items():
+        assert check_settings(dict(settings), name) == settings
+    with pytest.raises(GsgsError, match="named set: default, ablation"):
+        load_variants("ablations")
+
+
+def test_overview_lists_variants_in_order_with_the_change_against_the_first():
+    from gsgs_engine.bench.sparse import overview
+
+    recs = [record("llff_flower", "plain", s, 16.0 + s) for s in (0, 1)]
+    recs += [record("llff_horns", "plain", s, 15.0) for s in (0, 1)]
+    recs += [record("llff_flower", "best", s, 20.0) for s in (0, 1)] + [record("llff_horns", "best", 0, 19.0)]
+    lines = overview(summarise(recs), "llff", ["plain", "best", "absent"])
+    assert lines[0].startswith("| variant | seeds | llff_flower PSNR | llff_horns PSNR | PSNR | vs first |")
+    plain, best = lines[2], lines[3]
+    assert len(lines) == 4  # no line for a variant without cells
+    assert plain.startswith("| plain | 2 | 16.50 ± 0.71 | 15.00 ± 0.00 | 15.75 ± 0.35 | +0.00 |")
+    # one complete seed for "best" (horns ran seed 0 only): the over-scenes figure says 1 seed
+    assert best.startswith("| best | 1 | 20.00 ± 0.00 | 19.00 ± 0.00 | 19.50 ± 0.00 | +3.75 |")
+    assert overview(summarise(recs), "blender", ["plain"]) == []

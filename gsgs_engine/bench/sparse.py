@@ -45,6 +45,22 @@ VARIANTS: dict[str, dict] = {
     "3dgs (sparse SfM init)": {"prior": "none", "init": "sfm"},
     "auto": {"prior": "auto"},
 }
+# the ablation of issue 14 (`--variants ablation`): plain 3DGS on each initialisation, each technique alone on
+# the dense initialisation (every other setting at its default), and the combination `--prior auto` runs
+ABLATION: dict[str, dict] = {
+    "3dgs (sparse SfM init)": VARIANTS["3dgs (sparse SfM init)"],
+    "3dgs (dense init)": {"prior": "none", "init": "mvs"},
+    "dense + count_control": {"prior": "none", "init": "mvs", "techniques": ["count_control"]},
+    "dense + dropout": {"prior": "none", "init": "mvs", "techniques": ["dropout"]},
+    "dense + binocular": {"prior": "none", "init": "mvs", "techniques": ["binocular"]},
+    "dense + opacity_decay": {"prior": "none", "init": "mvs", "techniques": ["opacity_decay"]},
+    "dense + warp-inpaint pseudo views": {"prior": "warp", "init": "mvs"},
+    "dense + coregularisation": {"prior": "none", "init": "mvs", "techniques": ["coregularisation"]},
+    "dense + depth regulariser": {"prior": "depth", "init": "mvs", "prior_settings": {"depth_source": "sparse"}},
+    "auto": VARIANTS["auto"],
+}
+#: named variant sets `--variants NAME` selects
+VARIANT_SETS: dict[str, dict[str, dict]] = {"default": VARIANTS, "ablation": ABLATION}
 METRIC_KEYS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "train_seconds", "seconds", "num_gaussians")
 
 
@@ -171,6 +187,37 @@ def _cell(ms: tuple, spec: str) -> str:
     return "n/a" if mean is None else f"{format(mean, spec)} ± {format(std, spec)}"
 
 
+def overview(rows: list[dict], protocol: str, variants: list[str]) -> list[str]:
+    """One line per variant (in the variants' order): PSNR per scene and over scenes, the change against the
+    first variant, SSIM, LPIPS and total seconds over scenes. Over scenes = the protocol's mean row, or the
+    only scene's row; "seeds" counts the seeds that row holds."""
+    sel = {(r["scene"], r["variant"]): r for r in rows if r["protocol"] == protocol}
+    scenes = [s for s in PROTOCOLS[protocol]["scenes"] if any(k[0] == s for k in sel)]
+    if not scenes:
+        return []
+
+    def summary(variant: str) -> dict | None:
+        return sel.get(("mean", variant)) or (sel.get((scenes[0], variant)) if len(scenes) == 1 else None)
+
+    first = next((summary(v) for v in variants if summary(v)), None)
+    lines = ["| variant | seeds | " + " | ".join(f"{s} PSNR" for s in scenes)
+             + " | PSNR | vs first | SSIM | LPIPS (VGG) | total s |",
+             "|---|---|" + "---|" * len(scenes) + "---|---|---|---|---|"]
+    for variant in variants:
+        per_scene = [sel.get((s, variant)) for s in scenes]
+        if not any(per_scene):
+            continue
+        m = summary(variant)
+        gain = ("n/a" if m is None or first is None or m["psnr"][0] is None or first["psnr"][0] is None
+                else f"{m['psnr'][0] - first['psnr'][0]:+.2f}")
+        lines.append(f"| {variant} | {len(m['seeds']) if m else 'n/a'} | "
+                     + " | ".join("n/a" if r is None else _cell(r["psnr"], ".2f") for r in per_scene)
+                     + f" | {_cell(m['psnr'], '.2f') if m else 'n/a'} | {gain} | "
+                     + (f"{_cell(m['ssim'], '.3f')} | {_cell(m['lpips_vgg'], '.3f')} | {_cell(m['seconds'], '.0f')} |"
+                        if m else "n/a | n/a | n/a |"))
+    return lines
+
+
 def markdown(rows: list[dict], meta: dict) -> str:
     lines = [f"# Sparse-view benchmark ({meta['date']})", "",
              "Protocols: LLFF 3 views (images_8 504x378, test every 8th image, train round(linspace) over the rest); "
@@ -183,8 +230,12 @@ def markdown(rows: list[dict], meta: dict) -> str:
         sel = [r for r in rows if r["protocol"] == protocol]
         if not sel:
             continue
-        lines += [f"## {protocol}", "",
-                  "| scene | variant | seeds | PSNR | SSIM | LPIPS (VGG) | LPIPS (Alex) | train s | total s | Gaussians |",
+        lines += [f"## {protocol}", ""]
+        if len(meta["variants"]) > 2:
+            lines += ["Over scenes (each seed's mean over the scenes, then mean ± std over seeds); \"vs first\" = "
+                      "PSNR against the first variant:", "", *overview(rows, protocol, list(meta["variants"])), "",
+                      "Per scene:", ""]
+        lines += ["| scene | variant | seeds | PSNR | SSIM | LPIPS (VGG) | LPIPS (Alex) | train s | total s | Gaussians |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for r in sel:
             lines.append(f"| {r['scene']} | {r['variant']} | {len(r['seeds'])} | {_cell(r['psnr'], '.2f')} | "
@@ -197,17 +248,20 @@ def markdown(rows: list[dict], meta: dict) -> str:
 
 
 def load_variants(spec: str | None) -> dict[str, dict]:
-    """VARIANTS, or a JSON object {name: settings} given inline or as a file path."""
+    """VARIANTS, a named set of VARIANT_SETS, or a JSON object {name: settings} given inline or as a file path."""
     from gsgs_engine import GsgsError
 
     if spec is None:
         return dict(VARIANTS)
+    if spec in VARIANT_SETS:
+        return dict(VARIANT_SETS[spec])
     text = Path(spec).read_text() if Path(spec).is_file() else spec
     try:
         variants = json.loads(text)
     except json.JSONDecodeError as exc:
         raise GsgsError(f"--variants: not a JSON object or a file holding one ({exc}); "
-                        'e.g. \'{"plain": {"prior": "none"}}\'') from None
+                        'e.g. \'{"plain": {"prior": "none"}}\', or a named set: '
+                        + ", ".join(VARIANT_SETS)) from None
     if not isinstance(variants, dict) or not all(isinstance(v, dict) for v in variants.values()) or not variants:
         raise GsgsError("--variants: expected a JSON object mapping variant names to settings objects")
     return variants
@@ -280,7 +334,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="llff and/or blender (default both)")
     parser.add_argument("--scene", action="append", default=None, help="only these scenes (e.g. llff_flower)")
     parser.add_argument("--variants", default=None,
-                        help='JSON {name: settings} or a file holding it (default: ' + ", ".join(VARIANTS) + ")")
+                        help="a named set (" + ", ".join(f"{k}: {len(v)} variants" for k, v in VARIANT_SETS.items())
+                        + '; default: default), or JSON {name: settings}, or a file holding it')
     parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0 .. N-1; default 3)")
     parser.add_argument("--iters", type=int, default=None, help="override every variant's iterations")
     parser.add_argument("--resolution-scale", type=float, default=None,
