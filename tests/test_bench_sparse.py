@@ -112,3 +112,17 @@ def test_overview_lists_variants_in_order_with_the_change_against_the_first():
     # one complete seed for "best" (horns ran seed 0 only): the over-scenes figure says 1 seed
     assert best.startswith("| best | 1 | 20.00 ± 0.00 | 19.00 ± 0.00 | 19.50 ± 0.00 | +3.75 |")
     assert overview(summarise(recs), "blender", ["plain"]) == []
+
+
+def test_report_only_trains_nothing_and_lists_the_cells_not_run(tmp_path, capsys):
+    (tmp_path / "data" / "llff_horns").mkdir(parents=True)
+    argv = ["--protocol", "llff", "--scene", "llff_horns", "--seeds", "2", "--report-only",
+            "--data-root", str(tmp_path / "data"), "--work", str(tmp_path / "work"),
+            "--doc", str(tmp_path / "doc.md"), "--variants", '{"plain": {"prior": "none"}}']
+    assert main(argv) == 0
+    assert not (tmp_path / "work").exists()  # no cell folder was even created
+    report = json.loads((tmp_path / "doc.json").read_text())
+    assert report["cells"] == [] and report["meta"]["not_run"] == ["llff/llff_horns/plain/seed 0",
+                                                                   "llff/llff_horns/plain/seed 1"]
+    assert "- llff/llff_horns/plain/seed 1" in (tmp_path / "doc.md").read_text()
+    assert "2 not run" in capsys.readouterr().out

@@ -244,6 +244,11 @@ def markdown(rows: list[dict], meta: dict) -> str:
         lines.append("")
     lines += ["Variants (job.json settings, the same for every scene of a protocol):", ""]
     lines += [f"- `{name}`: `{json.dumps(settings)}`" for name, settings in meta["variants"].items()]
+    if meta.get("not_run"):
+        lines += ["", f"Not run yet ({len(meta['not_run'])} cells; the same command without --report-only trains "
+                  "them):", "", *[f"- {c}" for c in meta["not_run"]]]
+    if meta.get("failures"):
+        lines += ["", "Failed:", "", *[f"- {c}" for c in meta["failures"]]]
     return "\n".join(lines) + "\n"
 
 
@@ -269,11 +274,13 @@ def load_variants(spec: str | None) -> dict[str, dict]:
 
 def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str, dict], seeds: list[int], work: Path,
         data_root: Path, doc: Path, iters: int | None = None, resolution_scale: float | None = None,
-        timeout_s: float | None = None, command: str = "", log=print) -> list[dict]:
+        timeout_s: float | None = None, command: str = "", log=print, train: bool = True) -> list[dict]:
+    """Train the cells not finished before (all of them unless `train` is False: then the table is written from
+    the finished cells and the others are listed as not run) and write the table and JSON to `doc`."""
     from gsgs_engine import GsgsError
     from gsgs_engine.job import write_json_atomic
 
-    records, failures = [], []
+    records, failures, not_run = [], [], []
     plan = []
     for protocol in protocols:
         if protocol not in PROTOCOLS:
@@ -296,6 +303,9 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
         old = json.loads((folder / "job.json").read_text()) if (folder / "job.json").is_file() else {}
         if metrics is not None and old.get("settings") == job_settings and old.get("data") == data:
             log(f"[{i + 1}/{len(plan)}] {protocol}/{scene}/{variant}/seed {seed}: done before, skipped")
+        elif not train:
+            not_run.append(f"{protocol}/{scene}/{variant}/seed {seed}")
+            continue
         else:
             log(f"[{i + 1}/{len(plan)}] {protocol}/{scene}/{variant}/seed {seed}: training ({folder}) ...")
             metrics, message = run_cell(folder, data, job_settings, timeout_s)
@@ -312,12 +322,12 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
     rows = summarise(records)
     meta = {"date": time.strftime("%Y-%m-%d"), "command": command or "gsgs bench sparse",
             "machine": f"{os.cpu_count()} CPU cores" + _gpu_note(), "variants": variants,
-            "seconds": round(time.perf_counter() - t_start, 1), "failures": failures}
+            "seconds": round(time.perf_counter() - t_start, 1), "failures": failures, "not_run": not_run}
     doc.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(doc.with_suffix(".json"), {"meta": meta, "rows": rows, "cells": records})
     doc.with_suffix(".md").write_text(markdown(rows, meta))
     log(f"wrote {doc.with_suffix('.md')} and {doc.with_suffix('.json')} ({len(records)} cells, "
-        f"{len(failures)} failed)")
+        f"{len(failures)} failed" + (f", {len(not_run)} not run" if not_run else "") + ")")
     return rows
 
 
@@ -345,6 +355,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--doc", type=Path, default=REPO_ROOT / "docs" / "sparse_bench.md",
                         help="the markdown table; the JSON goes beside it")
     parser.add_argument("--timeout", type=float, default=None, help="seconds per cell")
+    parser.add_argument("--report-only", action="store_true",
+                        help="train nothing: write the table from the cells finished before and list the others")
 
 
 def _own_arguments(argv: list[str]) -> list[str]:
@@ -364,7 +376,8 @@ def run(args: argparse.Namespace) -> int:
         raise GsgsError("--seeds must be at least 1")
     run_bench(args.protocol or list(PROTOCOLS), args.scene, load_variants(args.variants), list(range(args.seeds)),
               args.work, args.data_root, args.doc, args.iters, args.resolution_scale, args.timeout,
-              command="gsgs bench sparse " + " ".join(_own_arguments(getattr(args, "_argv", None) or sys.argv[1:])))
+              command="gsgs bench sparse " + " ".join(_own_arguments(getattr(args, "_argv", None) or sys.argv[1:])),
+              train=not getattr(args, "report_only", False))
     return 0
 
 
