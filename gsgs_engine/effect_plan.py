@@ -311,7 +311,8 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
     # so `auto` does not pick it; the depth-only prior, --depth-source sparse or --effects depth=on do
     sparse_asked = requested == "depth" or prior_config.depth_source == "sparse" or depth_want is True
     needs_points = (sh_auto or (depth_possible and depth_want is not False and not depth_model))
-    if needs_points and triangulation is None and train_config.init in ("auto", "sfm") and len(views) >= 2:
+    # the dense stereo init triangulates the same views for its depth ranges: it reuses this triangulation too
+    if needs_points and triangulation is None and train_config.init in ("auto", "sfm", "mvs") and len(views) >= 2:
         from gsgs_engine.sfm import triangulate_with_known_poses
 
         log(f"effect plan: triangulating {len(views)} training views (shared with initialisation)")
@@ -380,6 +381,10 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
         effects["depth"] = Effect("depth", True, "sparse", f"{num_points} SfM points of the training views, "
                                   "densified per view", "user" if depth_want else "auto", {"sfm_points": num_points})
     else:
+        if requested == "depth":  # the depth-only prior without depth is plain 3DGS: never train it silently
+            raise GsgsError(f"--prior depth: no depth source ({num_points or 0} SfM points of the training views, "
+                            f"fewer than {MIN_DEPTH_POINTS}, and no depth model); pass --depth-source MODEL_DIR, "
+                            "or use --prior none")
         if depth_want is True:
             raise GsgsError(f"--effects depth=on: no depth source ({num_points or 0} SfM points, no depth model); "
                             "pass --depth-source MODEL_DIR")

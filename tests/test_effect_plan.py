@@ -142,8 +142,30 @@ def test_with_and_without_a_depth_source(tmp_path):
     assert plan(scene, replace(AUTO, depth_reg=False), tri=fake_triangulation(200))["depth"].enabled is False
     with pytest.raises(GsgsError, match="no depth source"):
         plan(scene, overrides={"depth": "on"}, tri=fake_triangulation(10))
+    with pytest.raises(GsgsError, match="--prior depth: no depth source"):  # never plain 3DGS in disguise
+        plan(scene, replace(AUTO, prior="depth"), tri=fake_triangulation(10))
     _, pc = apply_effect_plan(few, TrainConfig(), AUTO)
     assert (pc.depth_reg, pc.depth_source, pc.prior) == (False, "none", "warp")
+
+
+def test_an_explicit_dense_init_still_measures_points_for_depth_and_sh(monkeypatch):
+    # `--init mvs` once skipped the plan's triangulation: --prior depth then trained plain 3DGS ("0 SfM
+    # points") and the SH degree fell back to the views' cap instead of the measured spread
+    import gsgs_engine.sfm as sfm
+
+    calls = []
+    monkeypatch.setattr(sfm, "triangulate_with_known_poses", lambda views: calls.append(len(views)) or
+                        fake_triangulation(200))
+    scene = make_scene(forward=True)
+    scene.points = None
+    for init in ("mvs", "sfm", "auto"):
+        p = plan_effects(scene, TrainConfig(init=init), replace(AUTO, prior="depth"), {}, log=lambda m: None)
+        assert p["depth"].value == "sparse" and p["depth"].measured["sfm_points"] == 200
+        assert p.triangulation is not None  # shared with the init (the stereo's depth ranges)
+    assert calls == [4, 4, 4]
+    given = make_scene(forward=True)  # with the source's own points
+    p = plan_effects(given, TrainConfig(init="points"), replace(AUTO, prior="depth"), {}, log=lambda m: None)
+    assert p.triangulation is None and calls == [4, 4, 4]  # init from the given points: nothing triangulated
 
 
 def test_dense_vs_sparse_views():
