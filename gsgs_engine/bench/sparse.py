@@ -182,9 +182,12 @@ def summarise(records: list[dict]) -> list[dict]:
     return rows
 
 
-def _cell(ms: tuple, spec: str) -> str:
+def _cell(ms: tuple, spec: str, seeds: int = 2) -> str:
+    """"mean ± std"; one seed has no spread to show: its value alone."""
     mean, std = ms
-    return "n/a" if mean is None else f"{format(mean, spec)} ± {format(std, spec)}"
+    if mean is None:
+        return "n/a"
+    return format(mean, spec) if seeds == 1 else f"{format(mean, spec)} ± {format(std, spec)}"
 
 
 def overview(rows: list[dict], protocol: str, variants: list[str]) -> list[str]:
@@ -208,12 +211,13 @@ def overview(rows: list[dict], protocol: str, variants: list[str]) -> list[str]:
         if not any(per_scene):
             continue
         m = summary(variant)
+        n = len(m["seeds"]) if m else 0
         gain = ("n/a" if m is None or first is None or m["psnr"][0] is None or first["psnr"][0] is None
                 else f"{m['psnr'][0] - first['psnr'][0]:+.2f}")
-        lines.append(f"| {variant} | {len(m['seeds']) if m else 'n/a'} | "
-                     + " | ".join("n/a" if r is None else _cell(r["psnr"], ".2f") for r in per_scene)
-                     + f" | {_cell(m['psnr'], '.2f') if m else 'n/a'} | {gain} | "
-                     + (f"{_cell(m['ssim'], '.3f')} | {_cell(m['lpips_vgg'], '.3f')} | {_cell(m['seconds'], '.0f')} |"
+        lines.append(f"| {variant} | {n or 'n/a'} | "
+                     + " | ".join("n/a" if r is None else _cell(r["psnr"], ".2f", len(r["seeds"])) for r in per_scene)
+                     + f" | {_cell(m['psnr'], '.2f', n) if m else 'n/a'} | {gain} | "
+                     + (f"{_cell(m['ssim'], '.3f', n)} | {_cell(m['lpips_vgg'], '.3f', n)} | {_cell(m['seconds'], '.0f', n)} |"
                         if m else "n/a | n/a | n/a |"))
     return lines
 
@@ -238,9 +242,11 @@ def markdown(rows: list[dict], meta: dict) -> str:
         lines += ["| scene | variant | seeds | PSNR | SSIM | LPIPS (VGG) | LPIPS (Alex) | train s | total s | Gaussians |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for r in sel:
-            lines.append(f"| {r['scene']} | {r['variant']} | {len(r['seeds'])} | {_cell(r['psnr'], '.2f')} | "
-                         f"{_cell(r['ssim'], '.3f')} | {_cell(r['lpips_vgg'], '.3f')} | {_cell(r['lpips_alex'], '.3f')} | "
-                         f"{_cell(r['train_seconds'], '.0f')} | {_cell(r['seconds'], '.0f')} | {_cell(r['num_gaussians'], '.0f')} |")
+            n = len(r["seeds"])
+            lines.append(f"| {r['scene']} | {r['variant']} | {n} | {_cell(r['psnr'], '.2f', n)} | "
+                         f"{_cell(r['ssim'], '.3f', n)} | {_cell(r['lpips_vgg'], '.3f', n)} | "
+                         f"{_cell(r['lpips_alex'], '.3f', n)} | {_cell(r['train_seconds'], '.0f', n)} | "
+                         f"{_cell(r['seconds'], '.0f', n)} | {_cell(r['num_gaussians'], '.0f', n)} |")
         lines.append("")
     lines += ["Variants (job.json settings, the same for every scene of a protocol):", ""]
     lines += [f"- `{name}`: `{json.dumps(settings)}`" for name, settings in meta["variants"].items()]
