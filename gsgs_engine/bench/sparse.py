@@ -182,8 +182,8 @@ def summarise(records: list[dict]) -> list[dict]:
     return rows
 
 
-def _cell(ms: tuple, spec: str, seeds: int = 2) -> str:
-    """"mean ± std"; one seed has no spread to show: its value alone."""
+def _cell(ms: tuple, spec: str, seeds: int) -> str:
+    """"mean ± std" over `seeds` seeds; one seed has no spread to show: its value alone."""
     mean, std = ms
     if mean is None:
         return "n/a"
