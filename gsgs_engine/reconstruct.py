@@ -82,6 +82,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         trainer.train()
     finally:
         progress.close()
+    kernel_seconds = trainer.kernel_seconds()  # before evaluation renders add to the clocks
     if trainer.step >= trainer.config.iters and trainer.checkpoint_dir is not None:
         trainer.save_checkpoint()  # a later --resume finds the run complete and only re-exports
 
@@ -118,6 +119,10 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "num_gaussians": trainer.model.num_gaussians, "nan_steps_skipped": trainer.nan_steps_skipped,
         "final_losses": trainer.last_losses, "init": trainer.init_info.to_dict(), "plan": full_plan,
         "phase_seconds": {k: round(v, 3) for k, v in trainer.phase_seconds.items()},
+        # where the loop's time went: the compiled kernel's phases (this process; None off the CPU kernel) and
+        # the forward work inside each technique (its extra renders and losses; their backward is in "backward")
+        "kernel_seconds": None if kernel_seconds is None else {k: round(v, 3) for k, v in kernel_seconds.items()},
+        "technique_seconds": {k: round(v, 3) for k, v in trainer.technique_seconds.items()},
         "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
         "techniques": {t.name: t.report() for t in trainer.techniques},
     }
@@ -135,13 +140,14 @@ def config_from_settings(settings: dict) -> TrainConfig:
     settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "mvs_max_side", "densify", "max_gaussians", "prior", "prior_settings",
+               "coarse_fraction", "coarse_scale",
                "resolution_scale", "background", "preset", "effects", "techniques"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
     cfg = TrainConfig()
     for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-                "init", "random_init_points", "mvs_max_side", "densify"):
+                "init", "random_init_points", "mvs_max_side", "densify", "coarse_fraction", "coarse_scale"):
         if key in settings and settings[key] not in (None, "auto"):
             setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
     if "max_gaussians" in settings:

@@ -143,12 +143,14 @@ def test_binocular_baseline_is_a_tenth_of_the_depth_capped_by_the_rig():
         BinocularConsistency(rig_fraction=0)
 
 
-def test_binocular_terms_have_finite_gradients_and_smoothness_respects_edges():
+@pytest.mark.parametrize("scale", [1.0, 0.5])  # 0.5: the shifted view rendered at half size (issue 29)
+def test_binocular_terms_have_finite_gradients_and_smoothness_respects_edges(scale):
     from gsgs_engine.train.techniques.binocular import BinocularConsistency, edge_aware_smoothness
 
     trainer = make_trainer(iters=10)
     trainer.setup()
-    bino = trainer.add_technique(BinocularConsistency(start_fraction=0.0))
+    bino = trainer.add_technique(BinocularConsistency(start_fraction=0.0, scale=scale))
+    assert bino.report()["scale"] == scale
     ctx = ctx_for(trainer, 5)
     cam = trainer.train_views[0].camera
     ctx.render = trainer.render_for_training(ctx, cam)

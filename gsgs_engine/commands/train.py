@@ -44,6 +44,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mvs-size", type=int, default=None,
                         help="--init mvs: longest side (px) of the images the plane sweep works on (default 256; "
                              "reduced further to keep the sweep within its budget)")
+    parser.add_argument("--coarse-fraction", type=float, default=0.0,
+                        help="coarse-to-fine: the first FRACTION of the steps render the training views at "
+                             "--coarse-scale of their size (default %(default)s: off)")
+    parser.add_argument("--coarse-scale", type=float, default=0.5,
+                        help="coarse-to-fine: render scale of those first steps (default %(default)s)")
     parser.add_argument("--random-background", action="store_true",
                         help="RGBA scenes: a random background colour each step (target composited on the same)")
     bg = parser.add_mutually_exclusive_group()
@@ -92,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     config = TrainConfig(iters=args.iters, sh_degree=3 if args.sh_degree is None else args.sh_degree,
                          backend=args.backend, seed=args.seed,
                          checkpoint_every=args.checkpoint_every, random_background=args.random_background,
-                         init=args.init)
+                         init=args.init, coarse_fraction=args.coarse_fraction, coarse_scale=args.coarse_scale)
     if args.mvs_size is not None:
         config.mvs_max_side = args.mvs_size
     if args.init_points is not None:

@@ -35,6 +35,8 @@ class PriorConfig:
     geo_loss: bool = True
     jitter: float = 0.0
     pseudo_every: int = 1  # a pseudo view is rendered and supervised every this many steps
+    # pseudo views are rendered (and their targets area-averaged) at this fraction of their size (issue 29)
+    pseudo_scale: float = 1.0
     # forward-facing rigs: `ring_fraction` of the pseudo views on a ring of reach x the rig's radius (0 = none).
     # 5: LLFF protocol, seed 0 (docs/sparse_techniques.md): flower 20.58 -> 20.83 dB against 3, horns 20.11 -> 20.05
     reach: float = 5.0
@@ -109,6 +111,7 @@ def resolve_prior_plan(cfg: PriorConfig, num_train_views: int, sparse_points: in
             "lambda_reg": cfg.lambda_reg if depth_source else 0.0,
             "geo_loss": bool(cfg.geo_loss and generator == "diffusion"), "jitter": cfg.jitter,
             "reach": cfg.reach, "ring_fraction": cfg.ring_fraction, "warp_tolerance": cfg.warp_tolerance,
+            "pseudo_every": cfg.pseudo_every, "pseudo_scale": cfg.pseudo_scale,
             "depth_convention": "inverse depth (rendered 1/z vs estimated relative inverse depth)"}
 
 
@@ -135,6 +138,8 @@ def add_prior_arguments(parser) -> None:
                         "around the cameras, past the rig's edges (0 = all between neighbouring cameras)")
     g.add_argument("--ring-fraction", type=float, default=PriorConfig.ring_fraction,
                    help="forward-facing rigs: the share of the pseudo views on the ring (the rest between cameras)")
+    g.add_argument("--pseudo-scale", type=float, default=PriorConfig.pseudo_scale,
+                   help="render the pseudo views at this fraction of their size (their targets area-averaged to it)")
     g.add_argument("--warp-tolerance", type=float, default=PriorConfig.warp_tolerance,
                    help="warp-inpaint: relative depth agreement for a training photo to colour a pseudo-view pixel")
     g.add_argument("--diffusion-model", default=None, help="local Stable Diffusion 1.5 folder (diffusers layout)")
@@ -158,7 +163,8 @@ def prior_config_from_args(args) -> PriorConfig:
                        ring_weight=args.ring_weight,
                        lambda_reg=args.lambda_reg, depth_reg=not args.no_depth_reg, geo_loss=not args.no_geo_loss,
                        jitter=args.pseudo_jitter, reach=args.pseudo_reach, ring_fraction=args.ring_fraction,
-                       warp_tolerance=args.warp_tolerance, diffusion_model=args.diffusion_model,
+                       warp_tolerance=args.warp_tolerance, pseudo_scale=args.pseudo_scale,
+                       diffusion_model=args.diffusion_model,
                        depth_adapter=args.depth_adapter, device=args.device,
                        techniques=techniques_list(getattr(args, "techniques", None), "--techniques"),
                        diffusion={"strength": args.diffusion_strength, "steps": args.diffusion_steps,

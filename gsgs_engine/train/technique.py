@@ -45,6 +45,7 @@ class StepContext:
     background: Any
     renders: list = field(default_factory=list)
     shared: dict = field(default_factory=dict)
+    camera: Any = None  # the camera `render` was made with (the training view's, at this step's resolution)
 
 
 class Technique:

@@ -51,6 +51,10 @@ class TrainConfig:
     random_init_points: int = 5000
     mvs_max_side: int = MVSConfig.max_side  # init "mvs": working size of the plane sweep (longest side, px)
     densify: bool = True
+    # coarse-to-fine (the idea of DashGaussian): the first `coarse_fraction` of the steps render the training
+    # view at `coarse_scale` of its size against its area-averaged photo; 0 = full resolution throughout
+    coarse_fraction: float = 0.0
+    coarse_scale: float = 0.5
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
 
@@ -64,6 +68,20 @@ class TrainConfig:
         dc = DensifyConfig(**d.pop("densify_config", {}))
         known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
         return cls(lr=lr, densify_config=dc, **known)
+
+
+KERNEL_PHASES = ("project_forward", "binning", "raster_forward", "backward_prep", "raster_backward",
+                 "backward_reduce", "project_backward")  # the order of gsgs_raster_cpu::phase_seconds
+
+
+def _kernel_clock() -> dict[str, float] | None:
+    """The compiled CPU kernel's accumulated phase clocks (None when the kernel is not loaded in this process)."""
+    from gsgs_engine.render import cpu_backend
+
+    ops = cpu_backend._state.get("ops")
+    if ops is None or not hasattr(ops, "phase_seconds"):
+        return None
+    return dict(zip(KERNEL_PHASES, ops.phase_seconds().tolist()))
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -205,6 +223,8 @@ class Trainer:
         self.techniques: list[Technique] = []
         self.last_step_renders: list = []  # (render, camera) of the last step's supervised renders
         self._technique_states: dict[str, dict] = {}  # restored from a checkpoint, handed over at add_technique
+        # forward work inside each technique's loss_terms (its extra renders, warps and losses), part of "render"
+        self.technique_seconds: dict[str, float] = {}
         self.phase_seconds: dict[str, float] = {"init": 0.0, "render": 0.0, "backward": 0.0, "optimise": 0.0,
                                                 "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
         self.step = 0
@@ -221,6 +241,8 @@ class Trainer:
         self.extent = self._extent()
         self.size_extent = self.extent  # set from the initial points in setup()
         self._targets, self._alphas = self._load_targets()
+        self._kernel_start: dict[str, float] | None = None  # the kernel's phase clocks when training started
+        self._reduced_targets: dict[tuple, torch.Tensor] = {}  # coarse-to-fine: (view, w, h) -> area-averaged photo
         self.np_rng = np.random.default_rng(config.seed)
         self.torch_gen = torch.Generator().manual_seed(config.seed)
         torch.manual_seed(config.seed)
@@ -356,6 +378,27 @@ class Trainer:
         rgb_premul = self._targets[i] - self.background * (1 - a)
         return rgb_premul + background * (1 - a)
 
+    def step_scale(self, step: int) -> float:
+        """Render scale of the training view at 1-based `step` (coarse-to-fine; 1.0 when off)."""
+        cfg = self.config
+        return cfg.coarse_scale if step <= cfg.coarse_fraction * cfg.iters else 1.0
+
+    def _step_view(self, i: int, step: int, target: torch.Tensor) -> tuple[Camera, torch.Tensor]:
+        """(camera, target) of training view `i` at this step's resolution; reduced targets are cached."""
+        camera = self.train_views[i].camera
+        scale = self.step_scale(step)
+        if scale == 1.0:
+            return camera, target
+        from gsgs_engine.train.techniques.pseudo_views import resize_area
+
+        camera = camera.scaled(scale)
+        if target is not self._targets[i]:  # composited on this step's random background: not cached
+            return camera, resize_area(target, camera.height, camera.width)
+        key = (i, camera.width, camera.height)
+        if key not in self._reduced_targets:
+            self._reduced_targets[key] = resize_area(target, camera.height, camera.width)
+        return camera, self._reduced_targets[key]
+
     def train_step(self) -> bool:
         """One optimisation step; False when it was skipped for a non-finite loss or gradient."""
         model, cfg, sched = self.model, self.config, self.schedule
@@ -372,16 +415,18 @@ class Trainer:
         t0 = time.perf_counter()
         i = self._next_view()
         bg = self._step_background()
-        target = self._target(i, bg)
-        camera = self.train_views[i].camera
-        ctx = StepContext(self, step, i, None, target, bg)
+        camera, target = self._step_view(i, step, self._target(i, bg))
+        ctx = StepContext(self, step, i, None, target, bg, camera=camera)
         out = self.render_for_training(ctx, camera, bg)
         ctx.render = out
         ctx.renders.append((out, camera))
         self.backend_used = getattr(out, "backend", self.config.backend)
         terms = photometric_terms(out.color, target, cfg.lambda_dssim)
         for t in self.techniques:
-            for name, value in (t.loss_terms(ctx) or {}).items():
+            t_start = time.perf_counter()
+            extra = t.loss_terms(ctx) or {}
+            self.technique_seconds[t.name] = self.technique_seconds.get(t.name, 0.0) + time.perf_counter() - t_start
+            for name, value in extra.items():
                 if name in terms:
                     raise GsgsError(f"technique {t.name!r} adds loss term {name!r}, which another term already has")
                 terms[name] = value if isinstance(value, tuple) else (1.0, value)
@@ -446,8 +491,18 @@ class Trainer:
             raise KeyboardInterrupt
         self._signal = signum
 
+    def kernel_seconds(self) -> dict[str, float] | None:
+        """Seconds the compiled CPU kernel spent per phase in this process's training loop so far (projection,
+        binning, compositing forward / backward, ...), or None when it did not run here."""
+        if self._kernel_start is None:
+            return None
+        now = _kernel_clock()
+        return None if now is None else {k: now[k] - self._kernel_start.get(k, 0.0) for k in now}
+
     def train(self, until: int | None = None) -> None:
         """Train up to step `until` (default: the configured total); see the module docstring."""
+        if self._kernel_start is None:
+            self._kernel_start = _kernel_clock() or {}  # not loaded yet: its clocks start at zero
         target = self.config.iters if until is None else min(until, self.config.iters)
         handlers = {}
         if threading.current_thread() is threading.main_thread():
@@ -551,6 +606,10 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"--sh-degree must be 0..3 (got {cfg.sh_degree})")
     if cfg.checkpoint_every < 0:
         raise GsgsError(f"--checkpoint-every must be >= 0 (got {cfg.checkpoint_every})")
+    if not 0.0 <= cfg.coarse_fraction <= 1.0:
+        raise GsgsError(f"coarse_fraction must be in [0, 1] (got {cfg.coarse_fraction})")
+    if not 0.0 < cfg.coarse_scale <= 1.0:
+        raise GsgsError(f"coarse_scale must be in (0, 1] (got {cfg.coarse_scale})")
     if cfg.mvs_max_side < 16:
         raise GsgsError(f"--mvs-size must be at least 16 pixels (got {cfg.mvs_max_side})")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):

@@ -26,6 +26,10 @@ forward-facing capture whose subject stands far before its background the cap do
 depth 70 would give 7.0 against cameras 3.1 apart; capped, 2.3), which measured +0.34 dB there
 with LLFF horns unchanged (depth 3.3, cap 3.3; docs/sparse_techniques.md).
 
+With `scale` < 1 the shifted view is rendered at that fraction of the training view's size; the
+warp samples it (bilinearly) at the training view's full-resolution pixels, so the training depth
+keeps its full-resolution gradient while the extra render costs a fraction of a full one.
+
 The shifted render goes through `Trainer.render_for_training` (dropout applies to it too) but is
 not added to `ctx.renders`: as in the paper's code, densification statistics come from the
 training view only. Its random baseline comes from the trainer's seeded generator.
@@ -47,6 +51,7 @@ DEFAULT_SMOOTH_WEIGHT = 0.05
 DEFAULT_BASELINE_FRACTION = 0.1  # of the scene depth: 0.34 units on Blender's objects (Binocular3DGS: 0.4)
 DEFAULT_RIG_FRACTION = 0.75  # cap: of the mean distance from a training camera to its nearest neighbour
 DEFAULT_START_FRACTION = 0.6
+DEFAULT_SCALE = 1.0  # render size of the shifted view, a fraction of the training view's
 MIN_OPAQUE = 0.5  # a training pixel takes part where the rendered alpha says a surface is there
 
 
@@ -118,7 +123,11 @@ class BinocularConsistency(Technique):
 
     def __init__(self, weight: float = DEFAULT_WEIGHT, smooth_weight: float = DEFAULT_SMOOTH_WEIGHT,
                  baseline_fraction: float = DEFAULT_BASELINE_FRACTION, start_fraction: float = DEFAULT_START_FRACTION,
-                 max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION):
+                 max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION,
+                 scale: float = DEFAULT_SCALE):
+        if not 0.0 < scale <= 1.0:
+            raise GsgsError(f"binocular: the shifted view's render scale must be in (0, 1] (got {scale})")
+        self.scale = float(scale)
         if weight < 0 or smooth_weight < 0:
             raise GsgsError(f"binocular: weights must be >= 0 (got {weight}, {smooth_weight})")
         if not 0.0 <= start_fraction < 1.0:
@@ -154,8 +163,10 @@ class BinocularConsistency(Technique):
         tr = ctx.trainer
         u = torch.rand(2, generator=tr.torch_gen)
         baseline = float(u[0]) * self.max_baseline * (1.0 if float(u[1]) < 0.5 else -1.0)
-        camera = tr.train_views[ctx.view_index].camera
+        camera = ctx.camera if ctx.camera is not None else tr.train_views[ctx.view_index].camera
         shifted = shifted_camera(camera, baseline)
+        if self.scale != 1.0:
+            shifted = shifted.scaled(self.scale)
         out = tr.render_for_training(ctx, shifted, ctx.background)
         z = surface_depth(ctx.render.depth, ctx.render.alpha)
         warped, valid = warp_shifted_to_view(camera, z, shifted, out.color)
@@ -182,5 +193,5 @@ class BinocularConsistency(Technique):
     def report(self) -> dict:
         return {"weight": self.weight, "smooth_weight": self.smooth_weight, "max_baseline": self.max_baseline,
                 "baseline_fraction": self.baseline_fraction, "scene_depth": self.scene_depth,
-                "rig_baseline": self.rig_baseline, "rig_fraction": self.rig_fraction,
+                "rig_baseline": self.rig_baseline, "rig_fraction": self.rig_fraction, "scale": self.scale,
                 "start_step": self.start, "steps": self.steps, "last_valid_fraction": round(self.last_valid, 4)}

@@ -18,6 +18,17 @@ MIN_DEPTH_COVERAGE = 0.10  # share of training-view pixels a depth source must c
 MIN_MASK_PIXELS = 16  # a view whose estimate covers fewer pixels adds no term
 
 
+def _matched(inverse_depth: torch.Tensor, mask: torch.Tensor, rendered: torch.Tensor):
+    """An estimate and its mask resized to a render made at a reduced scale (coarse-to-fine steps,
+    pseudo views rendered smaller); unchanged at the same size."""
+    if tuple(rendered.shape) == tuple(inverse_depth.shape):
+        return inverse_depth, mask
+    from gsgs_engine.train.techniques.pseudo_views import resize_area
+
+    h, w = rendered.shape
+    return resize_area(inverse_depth.float(), h, w), resize_area(mask.float(), h, w) > 0.5
+
+
 class DepthRegulariser(Technique):
     """L_reg = -MS-SSIM(rendered inverse depth, estimated inverse depth), weight `lambda_reg` (eq. 10, 11).
 
@@ -101,13 +112,14 @@ class DepthRegulariser(Technique):
             return None
         terms = []
         inv_t, mask_t = self.train_depth[ctx.view_index]
+        inv_t, mask_t = _matched(inv_t, mask_t, ctx.render.depth)
         if mask_t.sum() > MIN_MASK_PIXELS:
             rendered = inverse_depth(ctx.render.depth, ctx.render.alpha)
             terms.append(depth_regulariser(rendered, inv_t, mask_t))
         pseudo = ctx.shared.get("pseudo")
         if pseudo is not None and self.pseudo_depth:
             j, _, out = pseudo
-            inv_p, mask_p = self.pseudo_depth[j]
+            inv_p, mask_p = _matched(*self.pseudo_depth[j], out.depth)
             if mask_p.sum() > MIN_MASK_PIXELS:
                 rendered = inverse_depth(out.depth, out.alpha)
                 terms.append(depth_regulariser(rendered, inv_p, mask_p))

@@ -160,7 +160,8 @@ class PriorLoop(Technique):
                            and not trainer.scene.has_time)
         self.plan["fill_empty"] = self.fill_empty
         t0 = time.perf_counter()
-        self.supervision = trainer.add_technique(PseudoSupervision(every=self.cfg.pseudo_every))
+        self.supervision = trainer.add_technique(PseudoSupervision(every=self.cfg.pseudo_every,
+                                                                       scale=self.cfg.pseudo_scale))
         if self.plan.get("depth_source"):
             self.depth = trainer.add_technique(DepthRegulariser(
                 self.plan["depth_source"], self.cfg.lambda_reg, self.plan,

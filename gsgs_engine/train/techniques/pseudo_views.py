@@ -1,7 +1,10 @@
 """Supervised pseudo views (eq. 11's pseudo terms): extra cameras with target images.
 
 Every `every` steps one pseudo view, drawn at random, is rendered and compared with its
-target (L1 + D-SSIM, weighted by the view's weight, optionally masked). The GS-GS prior loop
+target (L1 + D-SSIM, weighted by the view's weight, optionally masked). With `scale` < 1 the
+view is rendered at that fraction of its size and compared with its target and mask
+area-averaged to the same size, once per round (`resize_area`): a pseudo target is a
+warp-inpainted or generated image whose detail the loss does not need at full resolution. The GS-GS prior loop
 replaces the views between rounds (`set_views`); anything else may too (a test, a script,
 artist-authored targets).
 """
@@ -32,6 +35,15 @@ class PseudoView:
     extra: dict = field(default_factory=dict)
 
 
+def resize_area(image: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """An (H, W) or (H, W, C) tensor resized to (height, width) by area averaging (no-op at the same size)."""
+    if tuple(image.shape[:2]) == (height, width):
+        return image
+    x = image[None, None] if image.ndim == 2 else image.permute(2, 0, 1)[None]
+    out = torch.nn.functional.interpolate(x.float(), size=(height, width), mode="area").to(image.dtype)
+    return out[0, 0] if image.ndim == 2 else out[0].permute(1, 2, 0).contiguous()
+
+
 def _as_image_tensor(img) -> torch.Tensor:
     t = torch.as_tensor(np.asarray(img, dtype=np.float32) if not torch.is_tensor(img) else img).float()
     if t.ndim != 3 or t.shape[2] != 3:
@@ -44,8 +56,12 @@ class PseudoSupervision(Technique):
 
     name = "pseudo_views"
 
-    def __init__(self, views: list[PseudoView] | None = None, every: int = 1):
+    def __init__(self, views: list[PseudoView] | None = None, every: int = 1, scale: float = 1.0):
         self.every = max(int(every), 1)
+        if not 0.0 < scale <= 1.0:
+            raise GsgsError(f"pseudo views: the render scale must be in (0, 1] (got {scale})")
+        self.scale = float(scale)
+        self._cameras: list[Camera] = []
         self.views: list[PseudoView] = []
         self._targets: list[torch.Tensor] = []
         self._masks: list[torch.Tensor | None] = []
@@ -71,21 +87,23 @@ class PseudoSupervision(Technique):
             if pv.mask is not None and tuple(pv.mask.shape) != tuple(t.shape[:2]):
                 raise GsgsError(f"pseudo view {pv.name!r}: mask is {tuple(pv.mask.shape)}, image {tuple(t.shape[:2])}")
         self.views = list(views)
-        self._targets = targets
-        self._masks = [None if pv.mask is None else torch.as_tensor(pv.mask).to(device, torch.float32)
-                       for pv in views]
+        self._cameras = [pv.camera if self.scale == 1.0 else pv.camera.scaled(self.scale) for pv in views]
+        self._targets = [resize_area(t, c.height, c.width) for t, c in zip(targets, self._cameras)]
+        self._masks = [None if pv.mask is None else
+                       resize_area(torch.as_tensor(pv.mask).to(device, torch.float32), c.height, c.width)
+                       for pv, c in zip(views, self._cameras)]
 
     def loss_terms(self, ctx: StepContext) -> dict | None:
         if not self.views or ctx.step % self.every != 0:
             return None
         tr = ctx.trainer
         j = int(tr.np_rng.integers(len(self.views)))
-        pv = self.views[j]
-        out = tr.render_for_training(ctx, pv.camera)  # a pseudo target has the scene background baked in
-        ctx.renders.append((out, pv.camera))
+        pv, camera = self.views[j], self._cameras[j]
+        out = tr.render_for_training(ctx, camera)  # a pseudo target has the scene background baked in
+        ctx.renders.append((out, camera))
         ctx.shared["pseudo"] = (j, pv, out)
         return photometric_terms(out.color, self._targets[j], tr.config.lambda_dssim, weight=pv.weight,
                                  prefix="pseudo_", mask=self._masks[j])
 
     def report(self) -> dict:
-        return {"views": len(self.views), "every": self.every}
+        return {"views": len(self.views), "every": self.every, "scale": self.scale}
