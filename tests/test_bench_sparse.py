@@ -60,6 +60,7 @@ def test_tiny_real_run_is_resumable(tmp_path, capsys):
     assert job["data"]["train_ids"] == BLENDER_TRAIN_IDS and job["settings"]["seed"] == 0
     table = (tmp_path / "doc" / "sparse.md").read_text()
     assert "| blender_chair | plain | 1 |" in table
+    assert "Where a step's time goes" in table and "| blender_chair | plain | 0 |" in table  # the step profile
     capsys.readouterr()
     assert main(argv) == 0  # everything finished: nothing trains again
     assert "done before, skipped" in capsys.readouterr().out
@@ -126,3 +127,22 @@ def test_report_only_trains_nothing_and_lists_the_cells_not_run(tmp_path, capsys
                                                                    "llff/llff_horns/plain/seed 1"]
     assert "- llff/llff_horns/plain/seed 1" in (tmp_path / "doc.md").read_text()
     assert "2 not run" in capsys.readouterr().out
+
+
+def test_step_profile_splits_the_loop_into_kernel_and_other_work():
+    from gsgs_engine.bench.sparse import profile_lines, step_profile
+
+    metrics = {"iterations": 100, "train_seconds": 20.0,
+               "phase_seconds": {"render": 8.0, "backward": 10.0, "optimise": 1.0, "densify": 0.5},
+               "kernel_seconds": {"project_forward": 0.5, "binning": 0.5, "raster_forward": 5.0, "backward_prep": 0.2,
+                                  "raster_backward": 7.0, "backward_reduce": 0.3, "project_backward": 0.5},
+               "technique_seconds": {"binocular": 3.0}}
+    p = step_profile(metrics)
+    assert p["raster fwd"] == pytest.approx(50.0) and p["raster bwd"] == pytest.approx(75.0)
+    assert p["proj+SH"] == pytest.approx(10.0) and p["binning"] == pytest.approx(5.0)
+    assert p["render+loss other"] == pytest.approx(20.0)  # 8 s render - 6 s of kernel forward, over 100 steps
+    assert p["backward other"] == pytest.approx(20.0)  # 10 - 8
+    assert p["step"] == pytest.approx(200.0) and p["technique:binocular"] == pytest.approx(30.0)
+    assert step_profile({**metrics, "kernel_seconds": None}) is None  # an older build: no clocks, no row
+    lines = profile_lines([{"scene": "s", "variant": "v", "seed": 0, "profile": p}, {"profile": None}])
+    assert len(lines) == 5 and lines[-1].startswith("| s | v | 0 | 200 | 10.0 | 5.0 | 50.0 | 75.0 |")

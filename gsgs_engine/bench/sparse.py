@@ -80,6 +80,65 @@ def cell_numbers(metrics: dict) -> dict:
     return out
 
 
+# the per-step profile's columns: (label, where the number comes from)
+PROFILE_COLUMNS = (("proj+SH", ("kernel", "project_forward", "project_backward")),
+                   ("binning", ("kernel", "binning")),
+                   ("raster fwd", ("kernel", "raster_forward")),
+                   ("raster bwd", ("kernel", "backward_prep", "raster_backward", "backward_reduce")),
+                   ("render+loss other", ("other_render",)),
+                   ("backward other", ("other_backward",)),
+                   ("optimiser", ("phase", "optimise")),
+                   ("densify", ("phase", "densify")))
+
+
+def step_profile(metrics: dict) -> dict | None:
+    """Milliseconds per training step by phase, from a cell's metrics.json (None without the kernel's clocks).
+
+    The kernel's clocks (projection + SH, binning, compositing forward and backward) over every render of the
+    loop; "render+loss other" = the trainer's render phase less the kernel's forward work (losses incl. SSIM,
+    warps, dropout masks, autograd bookkeeping); "backward other" likewise for the backward; plus each
+    technique's forward seconds (its extra renders and losses, kernel work included) under "technique:NAME"."""
+    kernel, phases = metrics.get("kernel_seconds"), metrics.get("phase_seconds") or {}
+    steps = metrics.get("iterations") or 0
+    if not kernel or not steps:
+        return None
+    fwd = kernel.get("project_forward", 0) + kernel.get("binning", 0) + kernel.get("raster_forward", 0)
+    bwd = kernel.get("backward_prep", 0) + kernel.get("raster_backward", 0) + kernel.get("backward_reduce", 0) \
+        + kernel.get("project_backward", 0)
+    derived = {"other_render": phases.get("render", 0) - fwd, "other_backward": phases.get("backward", 0) - bwd}
+    out = {}
+    for label, (source, *keys) in PROFILE_COLUMNS:
+        if source == "kernel":
+            value = sum(kernel.get(k, 0) for k in keys)
+        elif source == "phase":
+            value = sum(phases.get(k, 0) for k in keys)
+        else:
+            value = derived[source]
+        out[label] = 1000 * value / steps
+    out["step"] = 1000 * (metrics.get("train_seconds") or 0) / steps
+    for name, seconds in sorted((metrics.get("technique_seconds") or {}).items()):
+        out[f"technique:{name}"] = 1000 * seconds / steps
+    return out
+
+
+def profile_lines(records: list[dict]) -> list[str]:
+    """A markdown table of `step_profile` per cell (cells run by a build without the clocks are left out)."""
+    rows = [(r, r.get("profile")) for r in records if r.get("profile")]
+    if not rows:
+        return []
+    techniques = sorted({k for _, p in rows for k in p if k.startswith("technique:")})
+    labels = [label for label, _ in PROFILE_COLUMNS]
+    lines = ["Where a step's time goes (ms per step, averaged over the run; kernel columns summed over every render "
+             "of the step, technique columns = its forward work, kernel included; see `step_profile`):", "",
+             "| scene | variant | seed | step | " + " | ".join(labels + [t.split(':', 1)[1] for t in techniques]) + " |",
+             "|---|---|---|---|" + "---|" * (len(labels) + len(techniques))]
+    for r, p in rows:
+        lines.append(f"| {r['scene']} | {r['variant']} | {r['seed']} | {p['step']:.0f} | "
+                     + " | ".join(f"{p[k]:.1f}" for k in labels) + " | "
+                     + " | ".join(f"{p[t]:.1f}" if t in p else "-" for t in techniques) + (" |" if techniques else "|"))
+    return lines
+
+
 def cell_dir(work: Path, protocol: str, scene: str, variant: str, seed: int) -> Path:
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in variant).strip("_") or "variant"
     return work / protocol / scene / safe / f"seed{seed}"
@@ -323,7 +382,7 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
                 f"{metrics['train_seconds']:.0f} s, {metrics['num_gaussians']} Gaussians")
         records.append({"protocol": protocol, "scene": scene, "variant": variant, "seed": seed,
                         "folder": str(folder), "settings": job_settings,
-                        "metrics": cell_numbers(metrics),
+                        "metrics": cell_numbers(metrics), "profile": step_profile(metrics),
                         "init": metrics.get("init"), "lpips_reason": metrics.get("lpips_reason")})
     rows = summarise(records)
     meta = {"date": time.strftime("%Y-%m-%d"), "command": command or "gsgs bench sparse",
@@ -331,7 +390,8 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
             "seconds": round(time.perf_counter() - t_start, 1), "failures": failures, "not_run": not_run}
     doc.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(doc.with_suffix(".json"), {"meta": meta, "rows": rows, "cells": records})
-    doc.with_suffix(".md").write_text(markdown(rows, meta))
+    profile = profile_lines(records)
+    doc.with_suffix(".md").write_text(markdown(rows, meta) + ("\n" + "\n".join(profile) + "\n" if profile else ""))
     log(f"wrote {doc.with_suffix('.md')} and {doc.with_suffix('.json')} ({len(records)} cells, "
         f"{len(failures)} failed" + (f", {len(not_run)} not run" if not_run else "") + ")")
     return rows
