@@ -14,7 +14,7 @@ from test_trainer import make_trainer
 
 
 def test_resize_area_keeps_the_mean_and_is_a_no_op_at_the_same_size():
-    from gsgs_engine.train.techniques.pseudo_views import resize_area
+    from gsgs_engine.train.resample import resize_area
 
     img = torch.rand(30, 40, 3, generator=torch.Generator().manual_seed(0))
     half = resize_area(img, 15, 20)
@@ -88,7 +88,7 @@ def test_coarse_to_fine_renders_the_first_steps_smaller_then_full_size():
     assert sizes == [full.width // 2] * 4 + [full.width] * 4
     assert [trainer.step_scale(s) for s in (1, 4, 5, 8)] == [0.5, 0.5, 1.0, 1.0]
     # the reduced photos are made once per view and are the area average of the full ones
-    from gsgs_engine.train.techniques.pseudo_views import resize_area
+    from gsgs_engine.train.resample import resize_area
 
     for (i, w, h), small in trainer._reduced_targets.items():
         assert torch.equal(small, resize_area(trainer._targets[i], h, w))

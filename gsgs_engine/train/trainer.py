@@ -389,7 +389,7 @@ class Trainer:
         scale = self.step_scale(step)
         if scale == 1.0:
             return camera, target
-        from gsgs_engine.train.techniques.pseudo_views import resize_area
+        from gsgs_engine.train.resample import resize_area
 
         camera = camera.scaled(scale)
         if target is not self._targets[i]:  # composited on this step's random background: not cached

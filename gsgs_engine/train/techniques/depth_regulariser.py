@@ -23,7 +23,7 @@ def _matched(inverse_depth: torch.Tensor, mask: torch.Tensor, rendered: torch.Te
     pseudo views rendered smaller); unchanged at the same size."""
     if tuple(rendered.shape) == tuple(inverse_depth.shape):
         return inverse_depth, mask
-    from gsgs_engine.train.techniques.pseudo_views import resize_area
+    from gsgs_engine.train.resample import resize_area
 
     h, w = rendered.shape
     return resize_area(inverse_depth.float(), h, w), resize_area(mask.float(), h, w) > 0.5

@@ -19,6 +19,7 @@ import torch
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
 from gsgs_engine.train.losses import photometric_terms
+from gsgs_engine.train.resample import resize_area
 from gsgs_engine.train.technique import StepContext, Technique
 
 
@@ -33,15 +34,6 @@ class PseudoView:
     nearest_train: int | None = None  # index into the trainer's training views
     mask: np.ndarray | torch.Tensor | None = None  # (H, W): the pixels the target is trusted on (None: all)
     extra: dict = field(default_factory=dict)
-
-
-def resize_area(image: torch.Tensor, height: int, width: int) -> torch.Tensor:
-    """An (H, W) or (H, W, C) tensor resized to (height, width) by area averaging (no-op at the same size)."""
-    if tuple(image.shape[:2]) == (height, width):
-        return image
-    x = image[None, None] if image.ndim == 2 else image.permute(2, 0, 1)[None]
-    out = torch.nn.functional.interpolate(x.float(), size=(height, width), mode="area").to(image.dtype)
-    return out[0, 0] if image.ndim == 2 else out[0].permute(1, 2, 0).contiguous()
 
 
 def _as_image_tensor(img) -> torch.Tensor:
