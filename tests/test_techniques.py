@@ -193,10 +193,12 @@ def test_count_control_cap_is_respected_and_lowers_the_threshold_when_few():
 ALL = "count_control,dropout,binocular:start_fraction=0.3,opacity_decay"
 
 
-def _run(tmp_path, until=None, resume=False):
+def _run(tmp_path, until=None, resume=False, max_gaussians=None):
     from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
 
     trainer = make_trainer(iters=40, densify=True, checkpoint_every=20, tmp_path=tmp_path)
+    if max_gaussians is not None:
+        trainer.config.densify_config.max_gaussians = max_gaussians
     trainer.setup(resume=resume)
     for t in make_techniques(parse_techniques(ALL)):
         trainer.add_technique(t)
@@ -204,10 +206,16 @@ def _run(tmp_path, until=None, resume=False):
     return trainer
 
 
-def test_resume_with_techniques_is_bit_identical(tmp_path):
-    straight = _run(tmp_path / "a")
-    _run(tmp_path / "b", until=20)
-    resumed = _run(tmp_path / "b", resume=True)
+# 100_000: above the count control's budget (1000 here), which then lowers the cap at install: the checkpoint must
+# record the settings as asked, or the resume is refused as "trained with other settings" (found on a cancelled
+# LLFF protocol cell)
+@pytest.mark.parametrize("max_gaussians", [None, 100_000])
+def test_resume_with_techniques_is_bit_identical(tmp_path, max_gaussians):
+    straight = _run(tmp_path / "a", max_gaussians=max_gaussians)
+    interrupted = _run(tmp_path / "b", until=20, max_gaussians=max_gaussians)
+    if max_gaussians is not None:
+        assert interrupted.config.densify_config.max_gaussians < max_gaussians  # the budget took over
+    resumed = _run(tmp_path / "b", resume=True, max_gaussians=max_gaussians)
     assert resumed.step == straight.step == 40
     for name, p in straight.model.params.items():
         assert torch.equal(p, resumed.model.params[name]), name

@@ -241,6 +241,7 @@ class Trainer:
         self.extent = self._extent()
         self.size_extent = self.extent  # set from the initial points in setup()
         self._targets, self._alphas = self._load_targets()
+        self._config_as_set_up: TrainConfig | None = None  # see setup()
         self._kernel_start: dict[str, float] | None = None  # the kernel's phase clocks when training started
         self._reduced_targets: dict[tuple, torch.Tensor] = {}  # coarse-to-fine: (view, w, h) -> area-averaged photo
         self.np_rng = np.random.default_rng(config.seed)
@@ -296,6 +297,10 @@ class Trainer:
             self.model.to(self.device)  # initialised on the CPU (seeded generator); moved before Adam sees it
             self.optimizer = self._make_optimizer()
             self.stats = DensifyStats(self.model.num_gaussians, device=self.device)
+        # The settings as the run was asked for, before any technique adjusts them at install or per step (the
+        # count control lowers max_gaussians and the gradient threshold): what a checkpoint records and a resume
+        # compares, so a run with techniques resumes after a cancel or a crash.
+        self._config_as_set_up = TrainConfig.from_dict(self.config.to_dict())
         self.phase_seconds["init"] += time.perf_counter() - t0
 
     def _make_optimizer(self) -> torch.optim.Optimizer:
@@ -530,7 +535,8 @@ class Trainer:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def state(self) -> dict:
-        return {"format": CHECKPOINT_FORMAT, "step": self.step, "config": self.config.to_dict(),
+        config = self._config_as_set_up if self._config_as_set_up is not None else self.config
+        return {"format": CHECKPOINT_FORMAT, "step": self.step, "config": config.to_dict(),
                 "model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
                 "densify_stats": self.stats.state_dict(), "init": self.init_info.to_dict(),
                 "train_names": [v.name for v in self.train_views],
