@@ -170,6 +170,20 @@ def unavailable_reason() -> str | None:
     return _state.get("error")
 
 
+#: the compiled kernel's phase clocks, in the order `gsgs_raster_cpu::phase_seconds` returns them
+PHASES = ("project_forward", "binning", "raster_forward", "backward_prep", "raster_backward", "backward_reduce",
+          "project_backward")
+
+
+def phase_seconds() -> dict[str, float] | None:
+    """Seconds the kernel has spent per phase in this process so far, or None while it is not loaded (its clocks
+    only run once it is; loading is not attempted here)."""
+    ops = _state.get("ops")
+    if ops is None or not hasattr(ops, "phase_seconds"):
+        return None
+    return dict(zip(PHASES, ops.phase_seconds().tolist()))
+
+
 def _check_inputs(means2d, conics, colors, opacities, depths, radii, background) -> None:
     import torch
 

@@ -70,18 +70,10 @@ class TrainConfig:
         return cls(lr=lr, densify_config=dc, **known)
 
 
-KERNEL_PHASES = ("project_forward", "binning", "raster_forward", "backward_prep", "raster_backward",
-                 "backward_reduce", "project_backward")  # the order of gsgs_raster_cpu::phase_seconds
-
-
 def _kernel_clock() -> dict[str, float] | None:
-    """The compiled CPU kernel's accumulated phase clocks (None when the kernel is not loaded in this process)."""
     from gsgs_engine.render import cpu_backend
 
-    ops = cpu_backend._state.get("ops")
-    if ops is None or not hasattr(ops, "phase_seconds"):
-        return None
-    return dict(zip(KERNEL_PHASES, ops.phase_seconds().tolist()))
+    return cpu_backend.phase_seconds()
 
 
 class TrainingInterrupted(KeyboardInterrupt):
