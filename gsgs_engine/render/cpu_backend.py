@@ -27,7 +27,8 @@ CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = ("rasterize_cpu.cpp", "project_cpu.cpp", "ssim_cpu.cpp")
 # Plain -O3: no -ffast-math (NaN/inf handling and the exact 3DGS thresholds must hold) and no
 # -march=native (a cached build must run on any x86-64; the kernel carries its own AVX2 clone).
-# -ffp-contract=off keeps forward and backward evaluating alpha bit-identically.
+# -ffp-contract=off keeps forward and backward evaluating alpha bit-identically; only the tile bodies' AVX2+FMA
+# variant contracts (see rasterize_cpu.cpp, tile_kernels).
 CFLAGS = ("-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math", "-fopenmp")
 # at::parallel_for is header-inline (`#pragma omp parallel` in ATen/ParallelOpenMP.h): without
 # -fopenmp it compiles to a serial loop and a second thread buys nothing. The library links the

@@ -448,10 +448,12 @@ GSGS_INLINE void backward_tile_body(const Splat* splats, const int32_t* ranks, c
   }
 }
 
-// The tile bodies compiled three times: AVX2 with FMA (products and sums contracted, about 25 % fewer
-// instructions in the exponent polynomial and the quadratic form), AVX2, and portable x86-64; picked once
-// per process from the processor's features. Forward and backward of one process always use the same one,
-// so their skip decisions agree bit for bit.
+// The tile bodies compiled three times: AVX2 with FMA (products and sums contracted: forward and backward
+// 10-20 % faster on a trained LLFF model, docs/speed.md), AVX2, and portable x86-64; picked once per process
+// from the processor's features. Forward and backward of one process always use the same variant, and both
+// evaluate alpha through the same inline functions (gaussian_power, exp_nonpositive), which GCC contracts
+// alike in both; that is relied on, not guaranteed by the language, and the gradient parity tests against the
+// reference check it. GSGS_NO_FMA=1 selects the uncontracted AVX2 variant, bit-identical to the earlier kernel.
 #define GSGS_TILE_ARGS_F const Splat *splats, const int32_t *ranks, int count, int px0, int py0, int width, \
     int height, const float *background, float *out_color, float *out_depth, float *out_alpha, float *out_T, \
     int32_t *out_last
