@@ -65,6 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
+    args._argv = argv  # commands that re-issue themselves elsewhere (--ray) read their own flags from it
     run = getattr(args, "_run", None)
     if run is None:
         parser.print_help()

@@ -11,9 +11,20 @@ from gsgs_engine.job import Job
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("job_dir", help="job folder containing job.json")
+    from gsgs_engine.cluster.submit import add_ray_arguments
+
+    add_ray_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "ray", None):
+        from gsgs_engine.cluster.address import check_address
+        from gsgs_engine.cluster.submit import job_on_cluster, resources
+
+        check_address(args.ray)
+        Job.open(args.job_dir)
+        cpus, gpus = resources(args, None)
+        return job_on_cluster(args.job_dir, args.ray, cpus, gpus, args.ray_retries)
     job = Job.open(args.job_dir)
     job.set_status("running", f"{job.task} started")
     try:

@@ -62,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_prior_arguments(parser)
     add_preset_argument(parser)
     add_effects_argument(parser)
+    from gsgs_engine.cluster.submit import add_ray_arguments
+
+    add_ray_arguments(parser)
+    # what metrics.json records as the data: a run on a Ray worker trains a copy sent to it
+    parser.add_argument("--data-label", default=None, help=argparse.SUPPRESS)
     parser.set_defaults(_parser=parser)
 
 
@@ -87,6 +92,10 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine.settings_schema import check_args
 
     check_args(args)  # types, ranges, finiteness of every numeric flag (the rules job.json settings meet)
+    if args.ray:
+        from gsgs_engine.cluster.address import check_address
+
+        check_address(args.ray)  # a non-loopback cluster without a token: refused before anything is read or sent
     if args.prior not in PRIOR_CHOICES:
         raise GsgsError(f"--prior {args.prior!r} is not available; choose one of: {', '.join(PRIOR_CHOICES)}")
     from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
@@ -105,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
             raise GsgsError(f"--init-points must be at least 1 (got {args.init_points})")
         config.random_init_points = args.init_points
     validate_config(config)
-    resolve_device(config.backend)  # --backend cuda without CUDA / gsplat stops here, before any data is read
+    if not args.ray:  # on a cluster the worker's devices count; it checks them itself
+        resolve_device(config.backend)  # --backend cuda without CUDA / gsplat stops here, before any data is read
     out = Path(args.out)
     job = Job(root=out, spec={"task": "train"})  # a job-like folder; job.json is written only by Job.create
     from gsgs_engine.run_folder import claim_run_folder
@@ -116,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
 
     with writing(out, "the output folder (--out)"):
         out.mkdir(parents=True, exist_ok=True)
+    if args.ray:
+        from gsgs_engine.cluster.submit import train_on_cluster
+
+        return train_on_cluster(args, getattr(args, "_argv", None) or sys.argv[1:], out)
     job.set_status("running", f"training {args.data}")
     try:
         background = (1.0, 1.0, 1.0) if args.background == "white" else (0.0, 0.0, 0.0)
@@ -123,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         scene = load_scene(args.data, format=args.format, train_split=args.train_split,
                            train_views=args.train_views, train_ids=train_ids,
                            resolution_scale=args.resolution_scale, background=background)
-        plan = {"data": str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
+        plan = {"data": args.data_label or str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
                 "resolution_scale": args.resolution_scale, "prior": args.prior, "preset": args.preset,
                 "preset_changed": preset_changed}
         overrides = overrides_from_args(args)

@@ -1,0 +1,285 @@
+"""The driver side of a run on a Ray cluster: send the inputs, start the engine on a worker, mirror its
+folder back while it runs, forward a cancel, and retry from the last checkpoint when a worker is lost.
+
+Ray does the scheduling (CPUs / GPUs per run), placement, retries of lost nodes' resources and the
+transport; this module only decides what travels. What comes back is files: every answer of the
+worker actor (gsgs_engine.cluster.worker) is a `bytes` tar archive, which Ray hands over unpickled,
+checked member by member before anything is written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from gsgs_engine import GsgsError, __version__
+from gsgs_engine.cluster import worker as worker_module
+from gsgs_engine.cluster.address import check_address
+from gsgs_engine.cluster.worker import APPEND_FILES, CONSOLE, pack, pack_folder, unpack, write_file_atomic
+
+INSTALL_HINT = "install Ray with `pip install 'gsgs[cluster]'` (or `pip install 'ray[default]>=2.52'`)"
+POLL_S = 1.0
+CANCEL_WAIT_S = 120.0  # a cancelled engine finishes its step and checkpoints; give it this long
+_CONNECT_LOCK = threading.Lock()
+
+
+def import_ray():
+    try:
+        import ray
+    except ImportError as exc:
+        raise GsgsError(f"--ray: Ray is not installed in {sys.executable}; {INSTALL_HINT}") from exc
+    return ray
+
+
+def connect(address: str):
+    """ray.init(address) once per process, after the address check (nothing is sent before it)."""
+    check_address(address)
+    ray = import_ray()
+    with _CONNECT_LOCK:
+        if not ray.is_initialized():
+            runtime_env = os.environ.get("GSGS_RAY_RUNTIME_ENV")
+            try:
+                env = json.loads(runtime_env) if runtime_env else None
+            except json.JSONDecodeError as exc:
+                raise GsgsError(f"GSGS_RAY_RUNTIME_ENV is not valid JSON ({exc})") from exc
+            try:
+                ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level="ERROR",
+                         configure_logging=False)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise GsgsError(f"--ray {address}: cannot connect to the Ray cluster ({exc}); start one with "
+                                "`ray start --head --port 6380` and pass --ray HOST:6380 (docs/cluster.md)") from exc
+    return ray
+
+
+def actor_class(ray):
+    """The worker actor, sent by value so a worker without gsgs can still report that."""
+    import ray.cloudpickle as cloudpickle
+
+    cloudpickle.register_pickle_by_value(worker_module)
+    return ray.remote(max_restarts=0, max_task_retries=0)(worker_module.EngineRun)
+
+
+def _answer(ray, ref, what: str, timeout: float | None = None) -> tuple[dict, dict[str, bytes]]:
+    blob = ray.get(ref, timeout=timeout)
+    if not isinstance(blob, bytes):  # our actor returns bytes only; anything else is not ours
+        raise GsgsError(f"the Ray worker's answer to {what} is not an archive ({type(blob).__name__})")
+    try:
+        manifest, files = unpack(blob)
+    except (ValueError, OSError, json.JSONDecodeError) as exc:
+        raise GsgsError(f"the Ray worker's answer to {what} is not a valid archive ({exc})") from exc
+    if "error" in manifest:
+        raise GsgsError(f"on the Ray worker, {what} failed: {manifest['error']}")
+    return manifest, files
+
+
+@dataclass
+class RemoteCommand:
+    """One engine command to run on the cluster.
+
+    `argv` is what follows `python -m gsgs_engine` on the worker ("{work}" = its working folder),
+    `inputs` names the folders sent along (name -> archive bytes, unpacked as {work}/name),
+    `out` the working sub-folder mirrored into `local_out`; `resume_argv(has_checkpoint)` gives the
+    argv of a retry after a lost worker (with the local folder's checkpoint sent back out)."""
+
+    argv: list[str]
+    inputs: dict[str, bytes]
+    out: str
+    local_out: Path
+    resume_argv: Callable[[bool], list[str]] | None = None
+    no_sync: tuple[str, ...] = ()
+    num_cpus: float = 1.0
+    num_gpus: float = 0.0
+    env: dict = field(default_factory=dict)
+    label: str = "gsgs"
+
+
+def outgoing_state(local_out: Path, no_sync: tuple[str, ...] = ()) -> tuple[bytes, bool]:
+    """(archive, has_checkpoint) of what a resumed remote run needs from the local run folder: the
+    newest checkpoint, progress.jsonl and log.txt."""
+    local_out = Path(local_out)
+    replace: dict[str, bytes] = {}
+    ckpts = sorted((local_out / "checkpoints").glob("ckpt_*.safetensors")) if (local_out / "checkpoints").is_dir() else []
+    if ckpts:
+        newest = ckpts[-1]
+        replace[f"checkpoints/{newest.name}"] = newest.read_bytes()
+    for name in APPEND_FILES:
+        if (local_out / name).is_file() and name not in no_sync:
+            replace[name] = (local_out / name).read_bytes()
+    return pack({}, replace), bool(ckpts)
+
+
+class Mirror:
+    """The local copy of the worker's output folder, updated from poll archives."""
+
+    def __init__(self, local_out: Path, remote_files: dict, address: str):
+        self.local_out = Path(local_out)
+        self.known = dict(remote_files)  # rel -> [size, mtime_ns] as the worker last sent them
+        self.offsets = {name: (self.local_out / name).stat().st_size if (self.local_out / name).is_file() else 0
+                        for name in APPEND_FILES}
+        self.offsets[CONSOLE] = 0
+        self.address = address
+
+    def cursor(self) -> bytes:
+        return json.dumps({"files": self.known, "append": self.offsets}).encode()
+
+    def apply(self, manifest: dict, files: dict[str, bytes]) -> str:
+        """Write what arrived; returns new console text."""
+        for rel, data in files.items():
+            target = self.local_out / rel
+            if rel in APPEND_FILES:
+                start = int(manifest.get("appended", {}).get(rel, 0))
+                target.parent.mkdir(parents=True, exist_ok=True)
+                with open(target, "r+b" if target.exists() else "wb") as fh:
+                    fh.truncate(start)
+                    fh.seek(start)
+                    fh.write(data)
+                self.offsets[rel] = start + len(data)
+            elif rel == "status.json":
+                write_file_atomic(target, self._local_status(data))
+            else:
+                write_file_atomic(target, data)
+        now = manifest.get("files", {})
+        for rel in list(self.known):  # files the engine removed (older checkpoints pruned) go here too
+            if rel not in now and rel.startswith("checkpoints/"):
+                (self.local_out / rel).unlink(missing_ok=True)
+        self.known = {rel: stat for rel, stat in now.items() if rel not in APPEND_FILES}
+        self.offsets[CONSOLE] = int(manifest.get("console_from", 0)) + int(manifest.get("console_bytes", 0))
+        return manifest.get("console", "")
+
+    def _local_status(self, data: bytes) -> bytes:
+        """status.json as a reader on this machine needs it: this driver's pid and host (a UI can tell
+        when the driver died), the worker's under "remote"."""
+        try:
+            status = json.loads(data.decode())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise GsgsError(f"the Ray worker sent an unreadable status.json ({exc})") from exc
+        if not isinstance(status, dict):
+            raise GsgsError("the Ray worker sent a status.json that is not a JSON object")
+        status["remote"] = {"host": status.get("host"), "pid": status.get("pid"), "address": self.address}
+        status["host"], status["pid"] = socket.gethostname(), os.getpid()
+        return json.dumps(status, indent=2).encode()
+
+
+def _lost_worker_errors(ray) -> tuple[type, ...]:
+    from ray import exceptions as rex
+
+    names = ("RayActorError", "ActorDiedError", "ActorUnavailableError", "WorkerCrashedError", "NodeDiedError",
+             "ObjectLostError", "OwnerDiedError", "LocalRayletDiedError")
+    return tuple(getattr(rex, n) for n in names if hasattr(rex, n))
+
+
+def check_worker(hello: dict) -> None:
+    if hello.get("version") is None:
+        raise GsgsError(f"the Ray worker on {hello.get('host')} has no gsgs engine in {hello.get('python')} "
+                        f"({hello.get('import_error')}); install gsgs {__version__} there, or set GSGS_RAY_RUNTIME_ENV "
+                        "(docs/cluster.md)")
+    if hello["version"] != __version__:
+        raise GsgsError(f"the Ray worker on {hello.get('host')} runs gsgs {hello['version']}, this machine gsgs "
+                        f"{__version__}; install the same version on both (the job folder and checkpoints are "
+                        "only guaranteed between equal versions)")
+
+
+def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None] | None = None,
+               retries: int = 2, cancel_file: Path | None = None, poll_s: float = POLL_S,
+               on_start: Callable[[dict], None] | None = None, ship_state: bool = False) -> int:
+    """Run `command` on the cluster at `address` and mirror it into `command.local_out`. Returns the engine's
+    exit code. Ctrl-C / SIGTERM (KeyboardInterrupt) or `cancel_file` appearing cancels the remote run; a
+    lost worker is replaced up to `retries` times, resuming from the newest checkpoint that came back.
+    `ship_state`: send the local folder's newest checkpoint and progress first (a resumed run)."""
+    echo = echo or (lambda text: print(text, end="", file=sys.stderr, flush=True))
+    ray = connect(address)
+    lost_errors = _lost_worker_errors(ray)
+    engine_run = actor_class(ray)
+    refs = {name: ray.put(blob) for name, blob in command.inputs.items()}  # sent once, shared by every retry
+    local_out = Path(command.local_out)
+    local_out.mkdir(parents=True, exist_ok=True)
+    attempt = 0
+    argv = list(command.argv)
+    while True:
+        actor = engine_run.options(num_cpus=command.num_cpus, num_gpus=command.num_gpus,
+                                   name=None).remote()
+        cancelled_at: float | None = None
+        try:
+            hello, _ = _answer(ray, actor.hello.remote(), "start-up")
+            check_worker(hello)
+            names = list(refs)
+            blobs = [refs[n] for n in names]
+            if ship_state:
+                state_blob, _ = outgoing_state(local_out, command.no_sync)
+                names.append(command.out)
+                blobs.append(state_blob)
+            spec = json.dumps({"argv": argv, "out": command.out, "inputs": names, "env": command.env,
+                               "no_sync": list(command.no_sync)}).encode()
+            started, _ = _answer(ray, actor.start.remote(spec, *blobs), "starting the engine")
+            if on_start is not None:
+                on_start({**hello, "engine_pid": started.get("pid"), "attempt": attempt})
+            echo(f"gsgs: running on the Ray cluster at {address}: worker {hello.get('host')} "
+                 f"(engine pid {started.get('pid')}), attempt {attempt + 1}\n")
+            mirror = Mirror(local_out, started.get("files", {}), address)
+            while True:
+                try:
+                    if cancelled_at is None and cancel_file is not None and Path(cancel_file).exists():
+                        echo("gsgs: cancel requested; stopping the remote run (it saves a checkpoint)\n")
+                        _answer(ray, actor.cancel.remote(), "cancel")
+                        cancelled_at = time.monotonic()
+                    manifest, files = _answer(ray, actor.poll.remote(mirror.cursor()), "progress", timeout=300)
+                    text = mirror.apply(manifest, files)
+                    if text:
+                        echo(text)
+                    if not manifest.get("running"):
+                        rc = manifest.get("returncode")
+                        _close(ray, actor)
+                        return int(rc if rc is not None else 1)
+                    if cancelled_at is not None and time.monotonic() - cancelled_at > CANCEL_WAIT_S:
+                        _close(ray, actor)
+                        return 130
+                    time.sleep(poll_s)
+                except KeyboardInterrupt:
+                    if cancelled_at is not None:  # a second interrupt: stop waiting for the checkpoint
+                        ray.kill(actor)
+                        raise
+                    echo("gsgs: interrupted; stopping the remote run (it saves a checkpoint; "
+                         "interrupt again to stop waiting)\n")
+                    _answer(ray, actor.cancel.remote(), "cancel")
+                    cancelled_at = time.monotonic()
+        except lost_errors as exc:
+            attempt += 1
+            if attempt > retries:
+                raise GsgsError(f"the Ray worker running {command.label} was lost {attempt} times (last: "
+                                f"{type(exc).__name__}); the checkpoints that came back are in {local_out}; "
+                                "run the same command with --resume to continue") from None
+            _, has_ckpt = outgoing_state(local_out, command.no_sync)
+            ship_state = has_ckpt
+            argv = command.resume_argv(has_ckpt) if command.resume_argv is not None else list(command.argv)
+            echo(f"gsgs: lost the Ray worker ({type(exc).__name__}); starting again "
+                 + ("from the last checkpoint that came back" if has_ckpt else "from the start (no checkpoint yet)")
+                 + f", attempt {attempt + 1} of {retries + 1}\n")
+            if not has_ckpt:
+                for name in APPEND_FILES:
+                    (local_out / name).unlink(missing_ok=True)
+
+
+def _close(ray, actor) -> None:
+    try:
+        ray.get(actor.close.remote(), timeout=60)
+    except Exception:  # the folder is a temp folder; a failed clean-up must not hide the result
+        pass
+    try:
+        ray.kill(actor)
+    except Exception:
+        pass
+
+
+def folder_archive(root: Path, exclude: tuple[str, ...] = (), replace: dict[str, bytes] | None = None) -> bytes:
+    """A local folder as an input archive (hidden files and cancel requests left out)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise GsgsError(f"{root}: folder not found; nothing to send to the cluster")
+    return pack_folder(root, exclude, replace)
