@@ -11,7 +11,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(STAMP): $(BIN)/python pyproject.toml
-	$(BIN)/python -m pip install --quiet -e ".[blender,diffusion,dev]"
+	$(BIN)/python -m pip install --quiet -e ".[blender,diffusion,dev,cluster]"
 	$(BIN)/python -m gsgs_engine build-ext || echo "gsgs: compiled CPU rasteriser unavailable; the reference backend will run"
 	$(BIN)/python -m gsgs_engine.lpips.fetch || echo "gsgs: LPIPS weights not fetched (offline?); metrics.json records lpips null with the reason"
 	touch $(STAMP)

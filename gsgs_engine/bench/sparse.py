@@ -25,7 +25,9 @@ import math
 import os
 import subprocess
 import sys
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -172,8 +174,9 @@ def finished_metrics(folder: Path) -> dict | None:
 
 
 def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None = None,
-             python: str = sys.executable) -> tuple[dict | None, str]:
-    """Write the job folder and train it in a child process. Returns (metrics or None, message)."""
+             python: str = sys.executable, ray: "ClusterCells | None" = None) -> tuple[dict | None, str]:
+    """Write the job folder and train it in a child process (or, with `ray`, as a job on the cluster).
+    Returns (metrics or None, message)."""
     from gsgs_engine.bench.accuracy import _child_env
     from gsgs_engine.job import Job
 
@@ -186,6 +189,8 @@ def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None =
             shutil.rmtree(folder)
     if not (folder / "job.json").is_file():
         Job.create(folder, "train", data=data, settings=settings)
+    if ray is not None:
+        return _run_cell_on_cluster(folder, ray, timeout_s)
     cmd = [python, "-m", "gsgs_engine", "run-job", str(folder)]
     with open(folder / "bench_log.txt", "a") as log:
         try:
@@ -193,6 +198,32 @@ def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None =
             code = proc.returncode
         except subprocess.TimeoutExpired:
             return None, f"timed out after {timeout_s:g} s (log: {folder / 'bench_log.txt'})"
+    metrics = finished_metrics(folder)
+    if metrics is None:
+        tail = (folder / "bench_log.txt").read_text(errors="replace").strip().splitlines()[-3:]
+        return None, f"exit code {code}: " + " | ".join(tail)
+    return metrics, "ok"
+
+
+def _run_cell_on_cluster(folder: Path, ray: "ClusterCells", timeout_s: float | None) -> tuple[dict | None, str]:
+    from gsgs_engine import GsgsError
+    from gsgs_engine.cluster.submit import job_on_cluster
+
+    for stale in (folder / "cancel.request", folder / "status.json"):
+        stale.unlink(missing_ok=True)
+    timer = None
+    if timeout_s is not None:  # a cell over its time is cancelled like Ctrl-C would (checkpoint, status)
+        timer = threading.Timer(timeout_s, (folder / "cancel.request").touch)
+        timer.start()
+    with open(folder / "bench_log.txt", "a") as log:
+        try:
+            code = job_on_cluster(folder, ray.address, ray.cpus, ray.gpus, ray.retries,
+                                  echo=lambda text: (log.write(text), log.flush()))
+        except GsgsError as exc:
+            return None, str(exc)
+        finally:
+            if timer is not None:
+                timer.cancel()
     metrics = finished_metrics(folder)
     if metrics is None:
         tail = (folder / "bench_log.txt").read_text(errors="replace").strip().splitlines()[-3:]
@@ -339,9 +370,11 @@ def load_variants(spec: str | None) -> dict[str, dict]:
 
 def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str, dict], seeds: list[int], work: Path,
         data_root: Path, doc: Path, iters: int | None = None, resolution_scale: float | None = None,
-        timeout_s: float | None = None, command: str = "", log=print, train: bool = True) -> list[dict]:
+        timeout_s: float | None = None, command: str = "", log=print, train: bool = True,
+        ray: "ClusterCells | None" = None) -> list[dict]:
     """Train the cells not finished before (all of them unless `train` is False: then the table is written from
-    the finished cells and the others are listed as not run) and write the table and JSON to `doc`."""
+    the finished cells and the others are listed as not run) and write the table and JSON to `doc`.
+    With `ray`, the cells run side by side on a Ray cluster, one job each."""
     from gsgs_engine import GsgsError
     from gsgs_engine.job import write_json_atomic
 
@@ -361,32 +394,48 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
     if not plan:
         raise GsgsError(f"no cells: scenes {scenes} are in none of the protocols {protocols}")
     t_start = time.perf_counter()
-    for i, (protocol, scene, path, variant, settings, seed) in enumerate(plan):
+    cells = []  # (label, folder, job data, job settings, metrics of a finished earlier run or None)
+    for protocol, scene, path, variant, settings, seed in plan:
         folder = cell_dir(work, protocol, scene, variant, seed)
         data, job_settings = cell_spec(protocol, path, settings, seed, iters, resolution_scale)
         metrics = finished_metrics(folder)
         old = json.loads((folder / "job.json").read_text()) if (folder / "job.json").is_file() else {}
-        if metrics is not None and old.get("settings") == job_settings and old.get("data") == data:
-            log(f"[{i + 1}/{len(plan)}] {protocol}/{scene}/{variant}/seed {seed}: done before, skipped")
+        if metrics is not None and (old.get("settings") != job_settings or old.get("data") != data):
+            metrics = None
+        cells.append((f"{protocol}/{scene}/{variant}/seed {seed}", folder, data, job_settings, metrics))
+    todo = [i for i, cell in enumerate(cells) if cell[4] is None]
+    for i, (label, *_, metrics) in enumerate(cells):
+        if metrics is not None:
+            log(f"[{i + 1}/{len(plan)}] {label}: done before, skipped")
         elif not train:
-            not_run.append(f"{protocol}/{scene}/{variant}/seed {seed}")
-            continue
-        else:
-            log(f"[{i + 1}/{len(plan)}] {protocol}/{scene}/{variant}/seed {seed}: training ({folder}) ...")
-            metrics, message = run_cell(folder, data, job_settings, timeout_s)
-            if metrics is None:
-                failures.append(f"{protocol}/{scene}/{variant}/seed {seed}: {message}")
-                log(f"    failed: {message}")
+            not_run.append(label)
+    outcome: dict[int, tuple[dict | None, str]] = {}
+    if train and todo and ray is not None:
+        outcome = run_cells_on_cluster([cells[i] for i in todo], todo, len(plan), ray, timeout_s, log)
+    elif train:
+        for i in todo:
+            label, folder, data, job_settings, _ = cells[i]
+            log(f"[{i + 1}/{len(plan)}] {label}: training ({folder}) ...")
+            outcome[i] = run_cell(folder, data, job_settings, timeout_s)
+            _log_cell(outcome[i], log)
+    for i, (label, folder, data, job_settings, metrics) in enumerate(cells):
+        if metrics is None:
+            if i not in outcome:
                 continue
-            log(f"    PSNR {metrics['psnr']:.2f}, SSIM {metrics['ssim']:.3f}, LPIPS(VGG) {metrics.get('lpips_vgg')}, "
-                f"{metrics['train_seconds']:.0f} s, {metrics['num_gaussians']} Gaussians")
+            metrics, message = outcome[i]
+            if metrics is None:
+                failures.append(f"{label}: {message}")
+                continue
+        protocol, scene, variant, seed = plan[i][0], plan[i][1], plan[i][3], plan[i][5]
         records.append({"protocol": protocol, "scene": scene, "variant": variant, "seed": seed,
                         "folder": str(folder), "settings": job_settings,
                         "metrics": cell_numbers(metrics), "profile": step_profile(metrics),
                         "init": metrics.get("init"), "lpips_reason": metrics.get("lpips_reason")})
     rows = summarise(records)
     meta = {"date": time.strftime("%Y-%m-%d"), "command": command or "gsgs bench sparse",
-            "machine": f"{os.cpu_count()} CPU cores" + _gpu_note(), "variants": variants,
+            "machine": (f"{os.cpu_count()} CPU cores" + _gpu_note() if ray is None
+                        else f"Ray cluster at {ray.address} ({ray.cpus:g} CPU, {ray.gpus:g} GPU a cell)"),
+            "variants": variants,
             "seconds": round(time.perf_counter() - t_start, 1), "failures": failures, "not_run": not_run}
     doc.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(doc.with_suffix(".json"), {"meta": meta, "rows": rows, "cells": records})
@@ -395,6 +444,54 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
     log(f"wrote {doc.with_suffix('.md')} and {doc.with_suffix('.json')} ({len(records)} cells, "
         f"{len(failures)} failed" + (f", {len(not_run)} not run" if not_run else "") + ")")
     return rows
+
+
+def _log_cell(result: tuple[dict | None, str], log) -> None:
+    metrics, message = result
+    if metrics is None:
+        log(f"    failed: {message}")
+    else:
+        log(f"    PSNR {metrics['psnr']:.2f}, SSIM {metrics['ssim']:.3f}, LPIPS(VGG) {metrics.get('lpips_vgg')}, "
+            f"{metrics['train_seconds']:.0f} s, {metrics['num_gaussians']} Gaussians")
+
+
+@dataclass
+class ClusterCells:
+    """Where and with what a grid's cells run on a Ray cluster."""
+
+    address: str
+    cpus: float = 1.0
+    gpus: float = 0.0
+    retries: int = 2
+
+
+def run_cells_on_cluster(cells: list[tuple], indices: list[int], total: int, ray: ClusterCells,
+                         timeout_s: float | None, log) -> dict[int, tuple[dict | None, str]]:
+    """Every cell as a job on the cluster, all submitted at once (Ray queues what the workers cannot take
+    yet); each cell's job folder fills here as on a local run. Ctrl-C cancels them all."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gsgs_engine.cluster.remote import connect
+
+    connect(ray.address)  # the address check and the connection happen once, before any cell is sent
+
+    def one(position: int) -> tuple[dict | None, str]:
+        label, folder, data, settings, _ = cells[position]
+        log(f"[{indices[position] + 1}/{total}] {label}: sent to the cluster ({folder}) ...")
+        result = run_cell(folder, data, settings, timeout_s, ray=ray)
+        log(f"[{indices[position] + 1}/{total}] {label}: finished")
+        _log_cell(result, log)
+        return result
+
+    with ThreadPoolExecutor(max_workers=max(1, len(cells))) as pool:
+        futures = [pool.submit(one, k) for k in range(len(cells))]
+        try:
+            results = [f.result() for f in futures]
+        except KeyboardInterrupt:  # each cell's driver thread sees its cancel request and stops its run
+            for _, folder, *_ in cells:
+                (folder / "cancel.request").touch()
+            raise
+    return {indices[k]: results[k] for k in range(len(cells))}
 
 
 def _gpu_note() -> str:
@@ -421,6 +518,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--doc", type=Path, default=REPO_ROOT / "docs" / "sparse_bench.md",
                         help="the markdown table; the JSON goes beside it")
     parser.add_argument("--timeout", type=float, default=None, help="seconds per cell")
+    from gsgs_engine.cluster.submit import add_ray_arguments
+
+    add_ray_arguments(parser)
     parser.add_argument("--report-only", action="store_true",
                         help="train nothing: write the table from the cells finished before and list the others")
 
@@ -440,10 +540,18 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seeds < 1:
         raise GsgsError("--seeds must be at least 1")
+    cluster = None
+    if getattr(args, "ray", None):
+        from gsgs_engine.cluster.address import check_address
+        from gsgs_engine.cluster.submit import resources
+
+        check_address(args.ray)
+        cpus, gpus = resources(args, None)
+        cluster = ClusterCells(args.ray, cpus, gpus, args.ray_retries)
     run_bench(args.protocol or list(PROTOCOLS), args.scene, load_variants(args.variants), list(range(args.seeds)),
               args.work, args.data_root, args.doc, args.iters, args.resolution_scale, args.timeout,
               command="gsgs bench sparse " + " ".join(_own_arguments(getattr(args, "_argv", None) or sys.argv[1:])),
-              train=not getattr(args, "report_only", False))
+              train=not getattr(args, "report_only", False), ray=cluster)
     return 0
 
 

@@ -49,12 +49,21 @@ def connect(address: str):
                 env = json.loads(runtime_env) if runtime_env else None
             except json.JSONDecodeError as exc:
                 raise GsgsError(f"GSGS_RAY_RUNTIME_ENV is not valid JSON ({exc})") from exc
+            import signal
+
+            # ray.init makes SIGTERM exit the process at once; keep gsgs's handler (SIGTERM = Ctrl-C), so a
+            # terminated driver cancels its remote run and says so in status.json
+            on_main = threading.current_thread() is threading.main_thread()
+            previous = signal.getsignal(signal.SIGTERM) if on_main else None
             try:
                 ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level="ERROR",
                          configure_logging=False)
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 raise GsgsError(f"--ray {address}: cannot connect to the Ray cluster ({exc}); start one with "
                                 "`ray start --head --port 6380` and pass --ray HOST:6380 (docs/cluster.md)") from exc
+            finally:
+                if on_main and previous is not None:
+                    signal.signal(signal.SIGTERM, previous)
     return ray
 
 
@@ -220,8 +229,8 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
             started, _ = _answer(ray, actor.start.remote(spec, *blobs), "starting the engine")
             if on_start is not None:
                 on_start({**hello, "engine_pid": started.get("pid"), "attempt": attempt})
-            echo(f"gsgs: running on the Ray cluster at {address}: worker {hello.get('host')} "
-                 f"(engine pid {started.get('pid')}), attempt {attempt + 1}\n")
+            echo(f"gsgs: running on the Ray cluster at {address}: node {hello.get('node_ip')} ({hello.get('host')}), "
+                 f"worker pid {hello.get('pid')}, engine pid {started.get('pid')}, attempt {attempt + 1}\n")
             mirror = Mirror(local_out, started.get("files", {}), address)
             while True:
                 try:
@@ -236,6 +245,7 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
                     if not manifest.get("running"):
                         rc = manifest.get("returncode")
                         _close(ray, actor)
+                        echo(f"gsgs: the remote run ended (exit code {rc}); its files are in {local_out}\n")
                         return int(rc if rc is not None else 1)
                     if cancelled_at is not None and time.monotonic() - cancelled_at > CANCEL_WAIT_S:
                         _close(ray, actor)

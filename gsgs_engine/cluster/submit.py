@@ -80,8 +80,9 @@ def remote_train_argv(argv: list[str], parser: argparse.ArgumentParser, data_lab
     return ["train", "{work}/data", "--out", "{work}/out", "--data-label", data_label, *kept]
 
 
-def train_on_cluster(args: argparse.Namespace, argv: list[str], out: Path) -> int:
-    """`gsgs train ... --ray ADDRESS`: the run folder `out` was claimed here; the worker trains."""
+def train_on_cluster(args: argparse.Namespace, argv: list[str], out: Path, resume_command: str) -> int:
+    """`gsgs train ... --ray ADDRESS`: the run folder `out` was claimed here; the worker trains.
+    `resume_command`: how to continue from here (the worker's message names its own folders)."""
     from gsgs_engine.cluster.remote import RemoteCommand, folder_archive, outgoing_state, run_remote
     from gsgs_engine.job import Job
 
@@ -98,6 +99,11 @@ def train_on_cluster(args: argparse.Namespace, argv: list[str], out: Path) -> in
     job = Job(root=out, spec={"task": "train"})
     job.set_status("running", f"training {args.data} on the Ray cluster at {args.ray}")
     rc = _run(args.ray, command, job, resume, args.ray_retries)
+    status = job.status() or {}
+    if status.get("state") == "cancelled":
+        job.set_status("cancelled", f"cancelled on the Ray cluster; resume with: {resume_command}",
+                       remote=status.get("remote"))
+        print(f"gsgs: cancelled; resume with: {resume_command}", file=sys.stderr)
     return rc
 
 
@@ -107,8 +113,8 @@ def _run(address: str, command, job, ship_state: bool, retries: int, echo=None) 
     try:
         rc = run_remote(address, command, retries=retries, cancel_file=job.cancel_path, ship_state=ship_state,
                         echo=echo)
-    except KeyboardInterrupt:
-        job.set_status("cancelled", "cancelled; the remote run was stopped; run the same command with --resume")
+    except KeyboardInterrupt:  # a second interrupt while the remote run was saving its checkpoint
+        job.set_status("cancelled", "cancelled; the remote run was stopped")
         return 130
     except GsgsError as exc:
         job.set_status("error", str(exc))

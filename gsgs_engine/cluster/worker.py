@@ -174,6 +174,12 @@ class EngineRun:
 
             info = {"host": socket.gethostname(), "pid": os.getpid(), "python": sys.executable,
                     "work": str(self.work)}
+            try:  # the node's address as Ray sees it (tests check it stays on 127.0.0.1)
+                import ray
+
+                info["node_ip"] = ray.util.get_node_ip_address()
+            except Exception:
+                info["node_ip"] = None
             try:
                 import gsgs_engine
 

@@ -129,8 +129,8 @@ def run(args: argparse.Namespace) -> int:
     if args.ray:
         from gsgs_engine.cluster.submit import train_on_cluster
 
-        return train_on_cluster(args, getattr(args, "_argv", None) or sys.argv[1:], out)
-    job.set_status("running", f"training {args.data}")
+        return train_on_cluster(args, getattr(args, "_argv", None) or sys.argv[1:], out, _resume_command(args))
+    job.set_status("running", f"training {args.data_label or args.data}")
     try:
         background = (1.0, 1.0, 1.0) if args.background == "white" else (0.0, 0.0, 0.0)
         train_ids = [s.strip() for s in args.train_ids.split(",") if s.strip()] if args.train_ids else None

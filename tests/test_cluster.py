@@ -1,0 +1,293 @@
+"""Runs on a Ray cluster (`--ray ADDRESS`): the address rule, the archives that travel, and real runs on a
+real local multi-node Ray cluster on 127.0.0.1 (tests/ray_local_cluster.py: a head and two worker nodes,
+started here and stopped by their process id)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import tarfile
+import time
+from pathlib import Path
+
+import pytest
+
+from gsgs_engine import GsgsError
+from gsgs_engine.cluster.address import check_address, is_loopback, split_address, token_configured
+from gsgs_engine.cluster.worker import folder_files, pack, unpack
+
+REPO = Path(__file__).resolve().parents[1]
+LEGO = REPO.parent / "shared" / "data" / "lego_200"
+
+
+# -- the address rule (no Ray needed) -------------------------------------------------------------
+@pytest.mark.parametrize("address, host, port", [("127.0.0.1:6380", "127.0.0.1", 6380),
+                                                 ("ray://localhost:10001", "localhost", 10001),
+                                                 ("[::1]:6380", "::1", 6380), ("gpu-box", "gpu-box", None)])
+def test_split_address(address, host, port):
+    assert split_address(address)[1:] == (host, port)
+
+
+@pytest.mark.parametrize("bad", ["", "http://x:1", "x:notaport", "x:70000", ":6380"])
+def test_split_address_refuses_bad_input(bad):
+    with pytest.raises(GsgsError):
+        split_address(bad)
+
+
+def test_loopback_needs_no_token_and_other_hosts_do(tmp_path):
+    assert is_loopback("127.0.0.1") and is_loopback("127.3.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("10.1.2.3") and not is_loopback("192.0.2.7")
+    no_token = {"HOME": str(tmp_path)}
+    assert check_address("127.0.0.1:6380", no_token) == "127.0.0.1:6380"
+    with pytest.raises(GsgsError, match="RAY_AUTH_MODE=token"):
+        check_address("10.1.2.3:6380", no_token)
+    with pytest.raises(GsgsError, match="no Ray token"):
+        check_address("ray://10.1.2.3:10001", {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": str(tmp_path / "x")})
+    token_file = tmp_path / "token"
+    token_file.write_text("0123456789abcdef\n")
+    assert token_configured({"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": str(token_file)})
+    assert check_address("10.1.2.3:6380", {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": "abc"}) == "10.1.2.3:6380"
+    assert not token_configured({"RAY_AUTH_TOKEN": "abc"})  # a token without token mode is not used by Ray
+
+
+def test_non_loopback_address_is_refused_before_anything_is_read_or_sent(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_AUTH")}
+    env.update(PYTHONPATH=str(REPO), HOME=str(tmp_path))
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "gsgs_engine", "train", str(tmp_path / "no_such_scene"), "--out",
+                           str(out), "--ray", "192.0.2.7:6380"], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2
+    assert "192.0.2.7 is not this machine" in proc.stderr and "RAY_AUTH_MODE=token" in proc.stderr
+    assert not out.exists()  # refused before the run folder (or the missing scene) was even looked at
+    job = tmp_path / "job"
+    from gsgs_engine.job import Job
+
+    Job.create(job, "train", data={"path": str(LEGO)})
+    proc = subprocess.run([sys.executable, "-m", "gsgs_engine", "run-job", str(job), "--ray", "192.0.2.7:6380"],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2 and "not this machine" in proc.stderr
+    assert not (job / "status.json").exists()
+
+
+def test_missing_ray_says_how_to_install(monkeypatch):
+    from gsgs_engine.cluster import remote
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` does where Ray is not installed
+    with pytest.raises(GsgsError, match=r"pip install 'gsgs\[cluster\]'"):
+        remote.import_ray()
+
+
+# -- what travels ---------------------------------------------------------------------------------
+def test_archives_round_trip_and_leave_out_temp_files(tmp_path):
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "ckpt_0000010.safetensors").write_bytes(b"x" * 10)
+    (tmp_path / "checkpoints" / ".ckpt.abc.tmp").write_bytes(b"half")
+    (tmp_path / "cancel.request").touch()
+    (tmp_path / "metrics.json").write_text("{}")
+    assert set(folder_files(tmp_path)) == {"checkpoints/ckpt_0000010.safetensors", "metrics.json"}
+    manifest, files = unpack(pack({"a": 1}, {"metrics.json": b"{}", "sub/b.bin": b"\0\1"}))
+    assert manifest == {"a": 1} and files == {"metrics.json": b"{}", "sub/b.bin": b"\0\1"}
+
+
+def _tar(member: tarfile.TarInfo, data: bytes = b"") -> bytes:
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        member.size = len(data) if member.isfile() else 0
+        tar.addfile(member, io.BytesIO(data) if member.isfile() else None)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("name, kind", [("data/../../etc/passwd", tarfile.REGTYPE), ("/data/x", tarfile.REGTYPE),
+                                        ("data/link", tarfile.SYMTYPE), ("data/dev", tarfile.CHRTYPE),
+                                        ("evil.py", tarfile.REGTYPE)])
+def test_archives_from_another_machine_are_checked(name, kind):
+    member = tarfile.TarInfo(name)
+    member.type = kind
+    member.linkname = "/etc/passwd" if kind == tarfile.SYMTYPE else ""
+    with pytest.raises(ValueError):
+        unpack(_tar(member, b"x"))
+
+
+def test_job_paths_send_what_the_job_names_from_outside_its_folder(tmp_path):
+    from gsgs_engine.cluster.submit import job_paths
+
+    scene, photo, job = tmp_path / "scene", tmp_path / "photos" / "a.png", tmp_path / "job"
+    scene.mkdir()
+    photo.parent.mkdir()
+    photo.write_bytes(b"png")
+    job.mkdir()
+    (job / "points.ply").write_bytes(b"ply")
+    spec = {"data": {"path": str(scene), "points": "points.ply",
+                     "cameras": [{"image": str(photo)}, {"image": str(photo)}]}}
+    rewritten, sends = job_paths(spec, job)
+    assert rewritten["data"]["path"] == "../in_path" and sends["in_path"] == scene.resolve()
+    assert rewritten["data"]["points"] == "points.ply"  # inside the job folder: travels with it
+    images = [c["image"] for c in rewritten["data"]["cameras"]]
+    assert images == ["../in_files/0000_a.png", "../in_files/0001_a.png"]
+    assert spec["data"]["path"] == str(scene)  # the local job.json is not changed
+    with pytest.raises(GsgsError, match="not a folder"):
+        job_paths({"data": {"path": str(tmp_path / "nowhere")}}, job)
+
+
+# -- a real local cluster -------------------------------------------------------------------------
+def ray_env(**extra) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_AUTH")}
+    env.update(RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", PYTHONPATH=str(REPO), OMP_NUM_THREADS="1", **extra)
+    return env
+
+
+@pytest.fixture(scope="module")
+def ray_cluster(tmp_path_factory):
+    pytest.importorskip("ray", reason="Ray is not installed (make test installs the [cluster] extra)")
+    temp = tmp_path_factory.mktemp("ray")
+    log = open(temp / "cluster.log", "w")
+    proc = subprocess.Popen([sys.executable, str(REPO / "tests" / "ray_local_cluster.py"), "--workers", "2",
+                             "--cpus", "1", "--temp-dir", str(temp / "r")], stdout=subprocess.PIPE, stderr=log,
+                            text=True, env=ray_env())
+    try:
+        line = proc.stdout.readline()
+        if not line:
+            pytest.fail(f"the local Ray cluster did not start: {(temp / 'cluster.log').read_text()[-2000:]}")
+        info = json.loads(line)
+        assert info["address"].startswith("127.0.0.1:"), info  # nothing on the machine's network address
+        yield info
+    finally:
+        proc.send_signal(signal.SIGTERM)  # the harness shuts down every process of the cluster
+        try:
+            proc.wait(timeout=90)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        for node in info.get("nodes", []) if "info" in locals() else []:
+            for pid in node["pids"]:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+        log.close()
+
+
+def gsgs(*args, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "gsgs_engine", *map(str, args)], capture_output=True, text=True,
+                          env=ray_env(), timeout=kw.pop("timeout", 600), **kw)
+
+
+needs_lego = pytest.mark.skipif(not LEGO.is_dir(), reason=f"{LEGO} absent (../shared/data)")
+
+
+@pytest.mark.slow
+@needs_lego
+def test_train_on_the_cluster_equals_the_local_run(ray_cluster, tmp_path):
+    common = [LEGO, "--iters", 60, "--prior", "none", "--seed", 0]
+    local = gsgs("train", *common, "--out", tmp_path / "local")
+    assert local.returncode == 0, local.stderr[-2000:]
+    remote = gsgs("train", *common, "--ray", ray_cluster["address"], "--out", tmp_path / "remote")
+    assert remote.returncode == 0, remote.stderr[-3000:]
+    assert "node 127.0.0.1" in remote.stderr  # the worker ran on a loopback node
+    assert (tmp_path / "local" / "point_cloud.ply").read_bytes() == (tmp_path / "remote" / "point_cloud.ply").read_bytes()
+    a = json.loads((tmp_path / "local" / "metrics.json").read_text())
+    b = json.loads((tmp_path / "remote" / "metrics.json").read_text())
+    assert a["psnr"] == b["psnr"] and a["num_gaussians"] == b["num_gaussians"]
+    assert b["plan"]["data"] == str(LEGO)  # the user's path, not the worker's copy
+    status = json.loads((tmp_path / "remote" / "status.json").read_text())
+    assert status["state"] == "ok" and status["pid"] != status["remote"]["pid"]
+    events = [json.loads(line) for line in (tmp_path / "remote" / "progress.jsonl").read_text().splitlines()]
+    assert events[-1]["phase"] in ("done", "eval", "export") or events[-1]["step"] == events[-1]["total"]
+    assert sorted(p.name for p in (tmp_path / "remote" / "renders").iterdir()) == \
+        sorted(p.name for p in (tmp_path / "local" / "renders").iterdir())
+
+
+def _wait_for(predicate, timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.5)
+
+
+def _training_step(out: Path) -> int:
+    from gsgs_engine.job import ProgressReader
+
+    events = [e for e in ProgressReader(out).poll() if e.get("phase") == "train"]
+    return events[-1]["step"] if events else -1
+
+
+def _parent_pid(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+@pytest.mark.slow
+@needs_lego
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the Ray worker process through /proc")
+def test_a_killed_worker_is_retried_from_its_last_checkpoint(ray_cluster, tmp_path):
+    common = [LEGO, "--iters", 300, "--checkpoint-every", 100, "--prior", "none", "--seed", 0]
+    out = tmp_path / "remote"
+    with open(tmp_path / "driver.log", "w") as log:
+        driver = subprocess.Popen([sys.executable, "-m", "gsgs_engine", "train", *map(str, common), "--ray",
+                                   ray_cluster["address"], "--out", str(out)], stdout=log, stderr=log, env=ray_env())
+        try:
+            _wait_for(lambda: (out / "checkpoints" / "ckpt_0000100.safetensors").is_file(), 300, "a checkpoint")
+            engine = json.loads((out / "status.json").read_text())["remote"]["pid"]
+            os.kill(_parent_pid(engine), signal.SIGKILL)  # the Ray worker process hosting the run
+            assert driver.wait(timeout=600) == 0
+        finally:
+            if driver.poll() is None:
+                driver.kill()
+    text = (tmp_path / "driver.log").read_text()
+    assert "lost the Ray worker" in text and "from the last checkpoint" in text, text[-3000:]
+    assert "resuming from" in (out / "log.txt").read_text()
+    local = gsgs("train", *common, "--out", tmp_path / "local")
+    assert local.returncode == 0, local.stderr[-2000:]
+    # resume is bit-exact: the interrupted run equals the uninterrupted one byte for byte
+    assert (out / "point_cloud.ply").read_bytes() == (tmp_path / "local" / "point_cloud.ply").read_bytes()
+
+
+@pytest.mark.slow
+@needs_lego
+def test_cancel_from_the_cli_stops_the_remote_run(ray_cluster, tmp_path):
+    out = tmp_path / "remote"
+    with open(tmp_path / "driver.log", "w") as log:
+        driver = subprocess.Popen([sys.executable, "-m", "gsgs_engine", "train", str(LEGO), "--iters", "5000",
+                                   "--prior", "none", "--ray", ray_cluster["address"], "--out", str(out)],
+                                  stdout=log, stderr=log, env=ray_env())
+        try:
+            _wait_for(lambda: _training_step(out) >= 2, 300, "training steps")
+            engine = json.loads((out / "status.json").read_text())["remote"]["pid"]
+            driver.send_signal(signal.SIGTERM)  # what Ctrl-C or the add-on's Cancel does to the driver
+            assert driver.wait(timeout=180) in (130, 143)  # as a local run: 128 + SIGTERM once training
+        finally:
+            if driver.poll() is None:
+                driver.kill()
+    status = json.loads((out / "status.json").read_text())
+    assert status["state"] == "cancelled" and "--resume" in status["message"], status
+    assert "/gsgs_remote_" not in status["message"]  # the resume command is the local one
+    _wait_for(lambda: not Path(f"/proc/{engine}").exists(), 30, "the remote engine to exit")
+    assert list((out / "checkpoints").glob("ckpt_*.safetensors"))  # the checkpoint it saved came back
+
+
+@pytest.mark.slow
+@needs_lego
+def test_resume_on_the_cluster_continues_a_local_run(ray_cluster, tmp_path):
+    out = tmp_path / "run"
+    args = [LEGO, "--iters", 300, "--prior", "none", "--checkpoint-every", 50, "--seed", 0, "--out", out]
+    local = subprocess.Popen([sys.executable, "-m", "gsgs_engine", "train", *map(str, args)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ray_env())
+    try:
+        _wait_for(lambda: (out / "checkpoints" / "ckpt_0000050.safetensors").is_file(), 300, "a local checkpoint")
+        local.send_signal(signal.SIGTERM)  # stopped here (a checkpoint is saved), continued on the cluster
+        local.wait(timeout=120)
+    finally:
+        if local.poll() is None:
+            local.kill()
+    assert json.loads((out / "status.json").read_text())["state"] == "cancelled"
+    more = gsgs("train", *args, "--resume", "--ray", ray_cluster["address"])
+    assert more.returncode == 0, more.stderr[-3000:]
+    assert "resuming from" in more.stderr
+    assert json.loads((out / "metrics.json").read_text())["iterations"] == 300
+    whole = gsgs("train", *args[:-1], tmp_path / "whole")
+    assert whole.returncode == 0, whole.stderr[-2000:]
+    assert (out / "point_cloud.ply").read_bytes() == (tmp_path / "whole" / "point_cloud.ply").read_bytes()
