@@ -29,9 +29,11 @@ def engine_command(python: str, job_dir: str | os.PathLike) -> list[str]:
     return [python, "-m", "gsgs_engine", "run-job", str(job_dir)]
 
 
-def engine_env(engine_root: str | os.PathLike | None = None) -> dict:
-    """Environment of the child: the engine's source folder first on PYTHONPATH (for a checkout)."""
+def engine_env(engine_root: str | os.PathLike | None = None, extra: dict | None = None) -> dict:
+    """Environment of the child: the engine's source folder first on PYTHONPATH (for a checkout), plus
+    `extra` (e.g. the Ray token of a cluster job)."""
     env = dict(os.environ)
+    env.update(extra or {})
     # Blender sets these for its own bundled Python; they would break another interpreter.
     for key in ("PYTHONHOME", "PYTHONNOUSERSITE"):
         env.pop(key, None)
@@ -91,9 +93,14 @@ class JobRun:
     events: int = 0
     cancel_at: float | None = None
     terminate_at: float | None = None
+    cancel_grace: float | None = None  # None: CANCEL_GRACE_S; longer for a cluster job (the remote run checkpoints)
     on_finish: list[Callable[["JobRun"], None]] = field(default_factory=list)
     finished_handled: bool = False
     _reader: ProgressReader | None = None
+
+    @property
+    def cancel_grace_s(self) -> float:
+        return CANCEL_GRACE_S if self.cancel_grace is None else self.cancel_grace
 
     def __post_init__(self) -> None:
         self.job_dir = Path(self.job_dir)
@@ -138,7 +145,7 @@ class JobRun:
             return new
         rc = self.process.poll()
         if rc is None:
-            if self.cancel_at is not None and self.terminate_at is None and now - self.cancel_at > CANCEL_GRACE_S:
+            if self.cancel_at is not None and self.terminate_at is None and now - self.cancel_at > self.cancel_grace_s:
                 self.process.terminate()
                 self.terminate_at = now
             elif self.terminate_at is not None and now - self.terminate_at > KILL_GRACE_S:
@@ -169,7 +176,7 @@ class JobRun:
 
     # -- control ------------------------------------------------------------------------
     def request_cancel(self) -> None:
-        """Ask the engine to stop at its next step; terminate() follows after CANCEL_GRACE_S."""
+        """Ask the engine to stop at its next step; terminate() follows after the grace period."""
         if self.finished:
             return
         # The engine sees cancel.request between steps; a process we started is also
@@ -190,7 +197,7 @@ class JobRun:
             if timeout is not None and time.monotonic() - start > timeout:
                 # Never leave an orphaned engine behind: cancel, and terminate after the grace period.
                 self.request_cancel()
-                give_up = time.monotonic() + CANCEL_GRACE_S + KILL_GRACE_S + 5.0
+                give_up = time.monotonic() + self.cancel_grace_s + KILL_GRACE_S + 5.0
                 while not self.finished and time.monotonic() < give_up:
                     self.poll()
                     time.sleep(interval)
@@ -205,8 +212,10 @@ RUNS: dict[str, JobRun] = {}
 
 def start(job_dir: str | os.PathLike, python: str, engine_root: str | os.PathLike | None = None,
           on_finish: Callable[[JobRun], None] | None = None, use_timer: bool | None = None,
-          command: list[str] | None = None) -> JobRun:
-    """Start `python -m gsgs_engine run-job job_dir` (or `command`) in the background and register it."""
+          command: list[str] | None = None, extra_args: list[str] | None = None, extra_env: dict | None = None,
+          cancel_grace_s: float | None = None) -> JobRun:
+    """Start `python -m gsgs_engine run-job job_dir [extra_args]` (or `command`) in the background and
+    register it."""
     job_dir = Path(job_dir).resolve()
     Job.open(job_dir)  # validates job.json before a process is spent on it
     key = str(job_dir)
@@ -219,18 +228,18 @@ def start(job_dir: str | os.PathLike, python: str, engine_root: str | os.PathLik
     for stale in (job_dir / "cancel.request", job_dir / "status.json"):
         if stale.exists():
             stale.unlink()
-    argv = list(command) if command is not None else engine_command(python, job_dir)
+    argv = list(command) if command is not None else engine_command(python, job_dir) + list(extra_args or [])
     with open(job_dir / "log.txt", "ab") as log:
         log.write(f"\n== gsgs: starting {' '.join(argv)} at {time.ctime()}\n".encode())
         log.flush()
         try:
             process = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, cwd=str(engine_root or job_dir),
-                                       env=engine_env(engine_root))
+                                       env=engine_env(engine_root, extra_env))
         except OSError as exc:
             raise GsgsError(f"cannot start the engine interpreter {python!r} ({exc}); "
                             "set a working Python in the GS-GS add-on preferences") from exc
-    run = JobRun(job_dir=job_dir, process=process)
+    run = JobRun(job_dir=job_dir, process=process, cancel_grace=cancel_grace_s)
     # Skip events a previous run of this folder already wrote; show only this run's.
     run._reader.poll()
     run.last_event = None

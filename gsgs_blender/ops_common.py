@@ -10,6 +10,7 @@ timer (interactive Blender) or wait for it (the bpy module and --background).
 from __future__ import annotations
 
 import functools
+import os
 import time
 from pathlib import Path
 from typing import Callable
@@ -54,10 +55,31 @@ def launch(context, job: Job, on_finish: Callable[[job_runner.JobRun], None] | N
     python = bpy.path.abspath(prefs.python_path)
     engine_root = bpy.path.abspath(prefs.engine_root) if prefs.engine_root else None
     interactive = job_runner.ui_available()
-    run = job_runner.start(job.root, python, engine_root=engine_root, on_finish=on_finish, use_timer=interactive)
+    args, env, grace = cluster_launch(prefs)
+    run = job_runner.start(job.root, python, engine_root=engine_root, on_finish=on_finish, use_timer=interactive,
+                           extra_args=args, extra_env=env, cancel_grace_s=grace)
     if not interactive:
         job_runner.wait_for(run, timeout=timeout or None)
     return run
+
+
+CLUSTER_CANCEL_GRACE_S = 90.0  # a cancelled cluster run finishes its step and sends its checkpoint back first
+
+
+def cluster_launch(prefs) -> tuple[list[str], dict, float | None]:
+    """(run-job arguments, environment, cancel grace) of the "Run jobs on" preference. For a Ray cluster the
+    child process is the driver: it sends the job and mirrors it back into the job folder, so progress,
+    Cancel, Resume and import work as for a local job. The address rule is checked before anything starts."""
+    if getattr(prefs, "run_on", "local") != "ray":
+        return [], {}, None
+    from gsgs_engine.cluster.address import check_address
+
+    env = {}
+    if prefs.ray_token:
+        env = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": prefs.ray_token}
+    address = check_address(prefs.ray_address, {**os.environ, **env})
+    return ["--ray", address, "--ray-cpus", str(int(prefs.ray_cpus)), "--ray-gpus",
+            "1" if prefs.device == "cuda" else "0"], env, CLUSTER_CANCEL_GRACE_S
 
 
 def scene_callback(scene_name: str, fn: Callable) -> Callable[[job_runner.JobRun], None]:

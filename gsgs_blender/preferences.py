@@ -37,6 +37,8 @@ def default_engine_root() -> str:
     return str(_CHECKOUT) if (_CHECKOUT / "gsgs_engine" / "__main__.py").is_file() else ""
 
 
+RUN_ON = [("local", "This Computer", "jobs run in a background process here"),
+          ("ray", "Ray Cluster", "jobs run on a Ray cluster; their files come back into the job folders")]
 DEVICES = [("auto", "Auto", "CUDA when available, else CPU"),
            ("cpu", "CPU", "always the CPU (slow, works everywhere)"),
            ("cuda", "CUDA", "an NVIDIA GPU; the job fails clearly when none is present")]
@@ -66,6 +68,17 @@ class GSGS_AddonPreferences(bpy.types.AddonPreferences):
         description="Local DPT depth estimator folder (transformers layout)")
     device: EnumProperty(name="Device", items=DEVICES, default="auto",
                          description="Where the engine trains")
+    run_on: EnumProperty(name="Run Jobs On", items=RUN_ON, default="local",
+                         description="Where SfM and training jobs run (docs/cluster.md)")
+    ray_address: StringProperty(
+        name="Ray Address", default="127.0.0.1:6380",
+        description="HOST:PORT of the Ray head (`ray start --head --port 6380`), or ray://HOST:10001; "
+                    "any host but this one needs the token")
+    ray_token: StringProperty(
+        name="Ray Token", subtype="PASSWORD", default="",
+        description="The cluster's authentication token (`ray get-auth-token`), sent as RAY_AUTH_TOKEN")
+    ray_cpus: IntProperty(name="CPUs per Job", default=1, min=1, soft_max=64,
+                          description="CPUs a job asks the cluster for (the engine uses as many threads)")
     engine_report: StringProperty(name="Engine Report", default="",
                                   description="Result of the last Check Engine")
 
@@ -76,6 +89,7 @@ class GSGS_AddonPreferences(bpy.types.AddonPreferences):
         col.prop(self, "engine_root")
         col.prop(self, "jobs_dir")
         col.prop(self, "device")
+        draw_run_on(self, layout)
         box = layout.box()
         box.label(text="Model folders (local; nothing is downloaded)")
         box.prop(self, "diffusion_dir")
@@ -88,6 +102,16 @@ class GSGS_AddonPreferences(bpy.types.AddonPreferences):
                 layout.label(text=line)
 
 
+def draw_run_on(prefs, layout) -> None:
+    box = layout.box()
+    box.prop(prefs, "run_on")
+    if prefs.run_on == "ray":
+        box.prop(prefs, "ray_address")
+        box.prop(prefs, "ray_token")
+        box.prop(prefs, "ray_cpus")
+        box.label(text="Workers need the same gsgs version; results come back into the job folders")
+
+
 class _Defaults:
     """Preferences when the add-on was registered without the add-on system (bpy module tests)."""
 
@@ -97,6 +121,10 @@ class _Defaults:
     diffusion_dir = depth_adapter_dir = depth_estimator_dir = ""
     device = "auto"
     engine_report = ""
+    run_on = "local"
+    ray_address = "127.0.0.1:6380"
+    ray_token = ""
+    ray_cpus = 1
 
 
 _FALLBACK = _Defaults()

@@ -291,3 +291,102 @@ def test_resume_on_the_cluster_continues_a_local_run(ray_cluster, tmp_path):
     whole = gsgs("train", *args[:-1], tmp_path / "whole")
     assert whole.returncode == 0, whole.stderr[-2000:]
     assert (out / "point_cloud.ply").read_bytes() == (tmp_path / "whole" / "point_cloud.ply").read_bytes()
+
+
+BLENDER_LEGO = REPO.parent / "shared" / "data" / "blender_lego"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not BLENDER_LEGO.is_dir(), reason=f"{BLENDER_LEGO} absent (../shared/data)")
+def test_a_grid_on_the_cluster_equals_the_local_grid(ray_cluster, tmp_path):
+    """4 cells (2 variants x 2 seeds) on the 2-worker cluster and one after another here: the same numbers.
+    (The wall-time ratio of the two is measured in docs/cluster.md, not asserted: timings here are noisy.)"""
+    grid = ["bench", "sparse", "--protocol", "blender", "--scene", "blender_lego", "--seeds", 2, "--iters", 20,
+            "--resolution-scale", 0.125, "--variants", json.dumps({"plain": {"prior": "none"},
+                                                                    "sh1": {"prior": "none", "sh_degree": 1}}),
+            "--data-root", BLENDER_LEGO.parent]
+    runs = {}
+    for name, extra in (("local", []), ("cluster", ["--ray", ray_cluster["address"]])):
+        proc = gsgs(*grid, "--work", tmp_path / name, "--doc", tmp_path / f"{name}.md", *extra)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
+    cells = {name: {(c["variant"], c["seed"]): c["metrics"] for c in run["cells"]} for name, run in runs.items()}
+    assert len(cells["local"]) == 4 and cells["local"].keys() == cells["cluster"].keys()
+    for key, local in cells["local"].items():
+        remote = cells["cluster"][key]
+        for field in ("psnr", "ssim", "lpips_vgg", "num_gaussians"):
+            assert local[field] == remote[field], (key, field, local[field], remote[field])
+    assert runs["cluster"]["meta"]["machine"].startswith("Ray cluster at 127.0.0.1:")
+    again = gsgs(*grid, "--work", tmp_path / "cluster", "--doc", tmp_path / "again.md", "--ray", ray_cluster["address"])
+    assert again.stdout.count("done before, skipped") + again.stderr.count("done before, skipped") == 4
+
+
+# -- the add-on (the real bpy module): "Run jobs on: Ray cluster" ------------------------------------------
+class _ClusterPrefs:
+    run_on, ray_token, ray_cpus, device = "ray", "", 1, "cpu"
+
+    def __init__(self, address: str):
+        self.ray_address = address
+
+
+def test_addon_refuses_a_remote_cluster_without_a_token(monkeypatch):
+    pytest.importorskip("bpy", reason="the add-on needs the bpy module")
+    from gsgs_blender import ops_common
+
+    for key in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setenv("HOME", "/nonexistent")
+    with pytest.raises(GsgsError, match="not this machine"):
+        ops_common.cluster_launch(_ClusterPrefs("192.0.2.7:6380"))
+    prefs = _ClusterPrefs("192.0.2.7:6380")
+    prefs.ray_token = "s3cret"
+    args, env, grace = ops_common.cluster_launch(prefs)
+    assert args[:2] == ["--ray", "192.0.2.7:6380"] and env == {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": "s3cret"}
+    assert ops_common.cluster_launch(type("Local", (), {"run_on": "local"})()) == ([], {}, None)
+
+
+@pytest.mark.slow
+@needs_lego
+def test_addon_cluster_job_cancels_resumes_and_reattaches(ray_cluster, tmp_path, monkeypatch):
+    pytest.importorskip("bpy", reason="the add-on needs the bpy module")
+    from gsgs_blender import job_runner, ops_common
+    from gsgs_engine.io.ply import read_ply_vertices
+    from gsgs_engine.job import Job
+
+    for key, value in ray_env().items():
+        monkeypatch.setenv(key, value)
+    args, env, grace = ops_common.cluster_launch(_ClusterPrefs(ray_cluster["address"]))
+    job = Job.create(tmp_path / "job", "train", data={"path": str(LEGO)},
+                     settings={"iters": 800, "prior": "none", "checkpoint_every": 100, "seed": 0})
+
+    def start():
+        return job_runner.start(job.root, sys.executable, engine_root=REPO, use_timer=False, extra_args=args,
+                                extra_env=env, cancel_grace_s=grace)
+
+    try:
+        run = start()
+        _wait_for(lambda: run.poll() is not None and (run.last_event or {}).get("phase") == "train"
+                  and run.last_event["step"] >= 2, 300, "training on the cluster")
+        engine = json.loads((job.root / "status.json").read_text())["remote"]["pid"]
+        run.request_cancel()  # the panel's Cancel
+        assert run.wait(timeout=200) == "cancelled", run.message
+        assert job.status()["state"] == "cancelled"
+        _wait_for(lambda: not Path(f"/proc/{engine}").exists(), 30, "the remote engine to exit")
+        assert list((job.root / "checkpoints").glob("ckpt_*.safetensors"))
+
+        run = start()  # Resume: the job continues on the cluster from the checkpoint that came back
+        _wait_for(lambda: run.poll() is not None and run.events > 0, 300, "the resumed job's progress")
+        job_runner.RUNS.clear()  # a reopened .blend: this session knows the job only by its folder
+        again = job_runner.attach(job.root)
+        assert again.state == "running" and again.process is None
+        assert again.wait(timeout=600) == "ok", again.message
+    finally:
+        for r in list(job_runner.RUNS.values()) + ([run] if "run" in locals() else []):
+            if r.process is not None and r.process.poll() is None:
+                r.process.terminate()
+                r.process.wait(timeout=120)
+        job_runner.RUNS.clear()
+    assert "resuming from" in (job.root / "log.txt").read_text()
+    metrics = json.loads((job.root / "result" / "metrics.json").read_text())
+    assert metrics["iterations"] == 800
+    assert len(read_ply_vertices(job.root / "result" / "point_cloud.ply")["x"]) == metrics["num_gaussians"]

@@ -16,7 +16,8 @@ ADDON = REPO / "gsgs_blender"
 BLENDER_ONLY = {"bpy", "bmesh", "mathutils", "bpy_extras"}
 HEAVY = {"torch", "pycolmap", "diffusers", "cv2"}
 # the layer the add-on imports: its module-level imports may be the stdlib, numpy and itself
-LIGHT_ROOTS = ["gsgs_engine", "gsgs_engine.io", "gsgs_engine.job", "gsgs_engine.cameras", "gsgs_engine.presets"]
+LIGHT_ROOTS = ["gsgs_engine", "gsgs_engine.io", "gsgs_engine.job", "gsgs_engine.cameras", "gsgs_engine.presets",
+               "gsgs_engine.cluster.address"]
 
 
 def python_files(root: Path) -> list[Path]:
