@@ -390,3 +390,25 @@ def test_addon_cluster_job_cancels_resumes_and_reattaches(ray_cluster, tmp_path,
     metrics = json.loads((job.root / "result" / "metrics.json").read_text())
     assert metrics["iterations"] == 800
     assert len(read_ply_vertices(job.root / "result" / "point_cloud.ply")["x"]) == metrics["num_gaussians"]
+
+
+@pytest.mark.slow
+@needs_lego
+def test_accuracy_cells_on_the_cluster_equal_local_cells(ray_cluster, tmp_path):
+    grid = tmp_path / "grid.json"
+    grid.write_text(json.dumps([{"iters": 20, "prior": "none", "backend": "cpu"},
+                                {"iters": 40, "prior": "none", "backend": "cpu"}]))
+    records = {}
+    for name, extra in (("local", []), ("cluster", ["--ray", ray_cluster["address"]])):
+        proc = gsgs("bench", "accuracy", LEGO, "--out", tmp_path / name, "--grid", grid, *extra)
+        assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
+        lines = (tmp_path / name / "results.jsonl").read_text().splitlines()
+        records[name] = {r["id"]: r for r in map(json.loads, lines)}
+    assert len(records["local"]) == 2 and records["local"].keys() == records["cluster"].keys()
+    for key, local in records["local"].items():
+        remote = records["cluster"][key]
+        assert remote["status"] == "ok" and remote["ran_on"].startswith("Ray cluster at 127.0.0.1:")
+        assert (local["psnr"], local["ssim"], local["num_gaussians"]) == \
+            (remote["psnr"], remote["ssim"], remote["num_gaussians"])
+        assert remote["peak_memory_mb"] > 50  # the worker's engine process, not this driver
+    assert (tmp_path / "cluster" / "accuracy_lego_200.md").is_file()

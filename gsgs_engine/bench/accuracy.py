@@ -146,6 +146,53 @@ def run_cell_process(data: str, cell: dict, cell_dir: Path, train_views: int | N
     return record
 
 
+def run_cell_on_cluster(data: str, cell: dict, cell_dir: Path, train_views: int | None, fmt: str,
+                        timeout_s: float | None, cluster) -> dict:
+    """One cell on a Ray cluster worker (the scene folder sent along); the same record as a local cell.
+    Its seconds are the worker's; process_seconds is the wall time seen here (transfers included) and
+    peak memory the worker process's own."""
+    from gsgs_engine import GsgsError
+    from gsgs_engine.cluster.remote import RemoteCommand, folder_archive, run_remote
+    from gsgs_engine.cluster.submit import thread_env
+
+    cell_dir.mkdir(parents=True, exist_ok=True)
+    (cell_dir / "cell.json").unlink(missing_ok=True)
+    argv = ["{work}/data", "--out", "{work}/out", "--settings", json.dumps(cell), "--format", fmt]
+    if train_views is not None:
+        argv += ["--train-views", str(train_views)]
+    gpus = 1.0 if cell["backend"] == "cuda" else cluster.gpus
+    command = RemoteCommand(argv=argv, inputs={"data": folder_archive(Path(data))}, out="out", local_out=cell_dir,
+                            num_cpus=cluster.cpus, num_gpus=gpus, env=thread_env(cluster.cpus),
+                            label=f"accuracy cell {cell_id(cell)}", module="gsgs_engine.bench.accuracy_cell")
+    t0 = time.perf_counter()
+    timer = threading.Timer(timeout_s, (cell_dir / "cancel.request").touch) if timeout_s else None
+    with open(cell_dir / "log.txt", "w") as log:
+        if timer:
+            timer.start()
+        try:
+            code = run_remote(cluster.address, command, echo=lambda text: (log.write(text), log.flush()),
+                              retries=cluster.retries, cancel_file=cell_dir / "cancel.request")
+            error = None
+        except GsgsError as exc:
+            code, error = 1, str(exc)
+        finally:
+            if timer:
+                timer.cancel()
+    record = {"id": cell_id(cell), "settings": cell, "returncode": code,
+              "process_seconds": round(time.perf_counter() - t0, 3), "ran_on": f"Ray cluster at {cluster.address}"}
+    result_path = cell_dir / "cell.json"
+    if code == 0 and result_path.is_file():
+        res = json.loads(result_path.read_text())
+        peak_kb = max(int(res.get("ru_maxrss_self_kb", 0)), int(res.get("ru_maxrss_children_kb", 0)))
+        record.update({"status": "ok", **{k: v for k, v in res.items() if k != "settings"},
+                       "peak_memory_mb": round(peak_kb / 1024, 1)})
+    else:
+        tail = (cell_dir / "log.txt").read_text(errors="replace").strip().splitlines()[-3:]
+        record.update({"status": "error", "error": error or (f"exit code {code}: " + " | ".join(tail)),
+                       "peak_memory_mb": None})
+    return record
+
+
 def _child_env() -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
@@ -161,8 +208,9 @@ def prepare_cpu_backend(log=print, python: str = sys.executable) -> bool:
 
 
 def run_grid(data: str, out: Path, cells: list[dict], train_views: int | None = None, fmt: str = "auto",
-             timeout_s: float | None = None, name: str | None = None, log=print) -> list[dict]:
-    """Run the cells not yet in out/results.jsonl; rewrite the table and plot after each. Returns all records."""
+             timeout_s: float | None = None, name: str | None = None, log=print, cluster=None) -> list[dict]:
+    """Run the cells not yet in out/results.jsonl; rewrite the table and plot after each. Returns all records.
+    With `cluster` (gsgs_engine.cluster.submit.ClusterCells) the cells run side by side on a Ray cluster."""
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.jsonl"
     context = {"data": str(Path(data).resolve()), "train_views": train_views}
@@ -171,12 +219,24 @@ def run_grid(data: str, out: Path, cells: list[dict], train_views: int | None = 
     name = name or Path(data).resolve().name
     todo = [c for c in cells if cell_id(c) not in done]
     log(f"accuracy grid: {len(cells)} cells, {len(cells) - len(todo)} already in {results}, {len(todo)} to run")
-    if any(c["backend"] in ("auto", "cpu") for c in todo):
+    if cluster is None and any(c["backend"] in ("auto", "cpu") for c in todo):
         prepare_cpu_backend(log)
+    if cluster is not None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        from gsgs_engine.cluster.remote import connect
+
+        connect(cluster.address)
+        pool = ThreadPoolExecutor(max_workers=max(1, len(todo)))
+        futures = [pool.submit(run_cell_on_cluster, data, c, out / "cells" / cell_id(c), train_views, fmt, timeout_s,
+                               cluster) for c in todo]
+        log(f"sent {len(todo)} cells to the Ray cluster at {cluster.address}")
     for i, cell in enumerate(todo):
         key = cell_id(cell)
         log(f"[{i + 1}/{len(todo)}] {key} ...")
-        record = {**context, **run_cell_process(data, cell, out / "cells" / key, train_views, fmt, timeout_s)}
+        outcome = (futures[i].result() if cluster is not None
+                   else run_cell_process(data, cell, out / "cells" / key, train_views, fmt, timeout_s))
+        record = {**context, **outcome}
         with open(results, "a") as fh:
             fh.write(json.dumps(record) + "\n")
         if record["status"] == "ok":
@@ -185,6 +245,8 @@ def run_grid(data: str, out: Path, cells: list[dict], train_views: int | None = 
         else:
             log(f"    failed: {record['error']}")
         write_reports(out, name, log=None, with_plot=False)  # the table stays current; the plot comes at the end
+    if cluster is not None:
+        pool.shutdown()
     return write_reports(out, name, log=log)
 
 
@@ -329,6 +391,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="name in the output files (default: the data folder's name)")
     parser.add_argument("--timeout", type=float, default=None, help="seconds before a cell is stopped (default none)")
     parser.add_argument("--list", action="store_true", help="print the cells and exit")
+    from gsgs_engine.cluster.submit import add_ray_arguments
+
+    add_ray_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -341,8 +406,13 @@ def run(args: argparse.Namespace) -> int:
         for c in cells:
             print(cell_id(c))
         return 0
+    cluster = None
+    if getattr(args, "ray", None):
+        from gsgs_engine.cluster.submit import cluster_cells
+
+        cluster = cluster_cells(args)
     records = run_grid(args.data, Path(args.out), cells, train_views=args.train_views, fmt=args.format,
-                       timeout_s=args.timeout, name=args.name)
+                       timeout_s=args.timeout, name=args.name, cluster=cluster)
     wanted = {cell_id(c) for c in cells}
     ok = {r["id"] for r in latest_ok(records)}
     return 0 if wanted <= ok else 1

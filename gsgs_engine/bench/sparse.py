@@ -27,7 +27,6 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -174,7 +173,7 @@ def finished_metrics(folder: Path) -> dict | None:
 
 
 def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None = None,
-             python: str = sys.executable, ray: "ClusterCells | None" = None) -> tuple[dict | None, str]:
+             python: str = sys.executable, ray=None) -> tuple[dict | None, str]:
     """Write the job folder and train it in a child process (or, with `ray`, as a job on the cluster).
     Returns (metrics or None, message)."""
     from gsgs_engine.bench.accuracy import _child_env
@@ -205,7 +204,7 @@ def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None =
     return metrics, "ok"
 
 
-def _run_cell_on_cluster(folder: Path, ray: "ClusterCells", timeout_s: float | None) -> tuple[dict | None, str]:
+def _run_cell_on_cluster(folder: Path, ray, timeout_s: float | None) -> tuple[dict | None, str]:
     from gsgs_engine import GsgsError
     from gsgs_engine.cluster.submit import job_on_cluster
 
@@ -371,7 +370,7 @@ def load_variants(spec: str | None) -> dict[str, dict]:
 def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str, dict], seeds: list[int], work: Path,
         data_root: Path, doc: Path, iters: int | None = None, resolution_scale: float | None = None,
         timeout_s: float | None = None, command: str = "", log=print, train: bool = True,
-        ray: "ClusterCells | None" = None) -> list[dict]:
+        ray=None) -> list[dict]:
     """Train the cells not finished before (all of them unless `train` is False: then the table is written from
     the finished cells and the others are listed as not run) and write the table and JSON to `doc`.
     With `ray`, the cells run side by side on a Ray cluster, one job each."""
@@ -455,17 +454,7 @@ def _log_cell(result: tuple[dict | None, str], log) -> None:
             f"{metrics['train_seconds']:.0f} s, {metrics['num_gaussians']} Gaussians")
 
 
-@dataclass
-class ClusterCells:
-    """Where and with what a grid's cells run on a Ray cluster."""
-
-    address: str
-    cpus: float = 1.0
-    gpus: float = 0.0
-    retries: int = 2
-
-
-def run_cells_on_cluster(cells: list[tuple], indices: list[int], total: int, ray: ClusterCells,
+def run_cells_on_cluster(cells: list[tuple], indices: list[int], total: int, ray,
                          timeout_s: float | None, log) -> dict[int, tuple[dict | None, str]]:
     """Every cell as a job on the cluster, all submitted at once (Ray queues what the workers cannot take
     yet); each cell's job folder fills here as on a local run. Ctrl-C cancels them all."""
@@ -542,12 +531,9 @@ def run(args: argparse.Namespace) -> int:
         raise GsgsError("--seeds must be at least 1")
     cluster = None
     if getattr(args, "ray", None):
-        from gsgs_engine.cluster.address import check_address
-        from gsgs_engine.cluster.submit import resources
+        from gsgs_engine.cluster.submit import cluster_cells
 
-        check_address(args.ray)
-        cpus, gpus = resources(args, None)
-        cluster = ClusterCells(args.ray, cpus, gpus, args.ray_retries)
+        cluster = cluster_cells(args)
     run_bench(args.protocol or list(PROTOCOLS), args.scene, load_variants(args.variants), list(range(args.seeds)),
               args.work, args.data_root, args.doc, args.iters, args.resolution_scale, args.timeout,
               command="gsgs bench sparse " + " ".join(_own_arguments(getattr(args, "_argv", None) or sys.argv[1:])),

@@ -107,6 +107,7 @@ class RemoteCommand:
     num_gpus: float = 0.0
     env: dict = field(default_factory=dict)
     label: str = "gsgs"
+    module: str = "gsgs_engine"  # what the worker runs with `python -m` (worker.MODULES)
 
 
 def outgoing_state(local_out: Path, no_sync: tuple[str, ...] = ()) -> tuple[bytes, bool]:
@@ -225,7 +226,7 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
                 names.append(command.out)
                 blobs.append(state_blob)
             spec = json.dumps({"argv": argv, "out": command.out, "inputs": names, "env": command.env,
-                               "no_sync": list(command.no_sync)}).encode()
+                               "no_sync": list(command.no_sync), "module": command.module}).encode()
             started, _ = _answer(ray, actor.start.remote(spec, *blobs), "starting the engine")
             if on_start is not None:
                 on_start({**hello, "engine_pid": started.get("pid"), "attempt": attempt})

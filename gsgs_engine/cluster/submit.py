@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from gsgs_engine import GsgsError
@@ -42,6 +43,25 @@ def resources(args: argparse.Namespace, backend: str | None) -> tuple[float, flo
     if gpus < 0:
         raise GsgsError(f"--ray-gpus must be 0 or more (got {args.ray_gpus})")
     return float(args.ray_cpus), float(gpus)
+
+
+@dataclass
+class ClusterCells:
+    """Where and with what a benchmark grid's cells run on a Ray cluster (one job a cell)."""
+
+    address: str
+    cpus: float = 1.0
+    gpus: float = 0.0
+    retries: int = DEFAULT_RETRIES
+
+
+def cluster_cells(args: argparse.Namespace) -> ClusterCells:
+    """The grid's --ray options, the address checked before anything is sent."""
+    from gsgs_engine.cluster.address import check_address
+
+    check_address(args.ray)
+    cpus, gpus = resources(args, None)
+    return ClusterCells(args.ray, cpus, gpus, args.ray_retries)
 
 
 def thread_env(num_cpus: float) -> dict:

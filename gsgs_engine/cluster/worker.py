@@ -28,6 +28,7 @@ from pathlib import Path
 MANIFEST = "manifest.json"
 APPEND_FILES = ("progress.jsonl", "log.txt")  # grow only: sent from the receiver's offset
 CONSOLE = "::console"  # the engine's stdout + stderr, streamed like an append-only file
+MODULES = ("gsgs_engine", "gsgs_engine.bench.accuracy_cell")  # what `python -m` may run here
 MAX_MEMBER_BYTES = 8 << 30
 
 
@@ -192,10 +193,13 @@ class EngineRun:
             return _error(exc)
 
     def start(self, spec: bytes, *inputs: bytes) -> bytes:
-        """`spec`: JSON {argv, out, inputs: [folder names], env, no_sync}; `inputs`: one archive per
-        folder, unpacked under the working folder. "{work}" in argv is the working folder."""
+        """`spec`: JSON {argv, out, inputs: [folder names], env, no_sync, module}; `inputs`: one archive
+        per folder, unpacked under the working folder. "{work}" in argv is the working folder."""
         try:
             cfg = json.loads(spec.decode())
+            module = cfg.get("module", "gsgs_engine")
+            if module not in MODULES:
+                raise ValueError(f"module {module!r} is not one of {', '.join(MODULES)}")
             for name, blob in zip(cfg["inputs"], inputs):
                 if "/" in name or name in ("", ".", ".."):
                     raise ValueError(f"bad input folder name {name!r}")
@@ -208,7 +212,7 @@ class EngineRun:
             env.update({k: str(v) for k, v in (cfg.get("env") or {}).items()})
             env["PYTHONUNBUFFERED"] = "1"
             with open(self.console_path, "wb") as console:
-                self.proc = subprocess.Popen([sys.executable, "-m", "gsgs_engine", *argv], cwd=self.work,
+                self.proc = subprocess.Popen([sys.executable, "-m", module, *argv], cwd=self.work,
                                              stdout=console, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                              env=env, preexec_fn=_die_with_parent if os.name == "posix" else None)
             self.started = time.time()
