@@ -412,3 +412,23 @@ def test_accuracy_cells_on_the_cluster_equal_local_cells(ray_cluster, tmp_path):
             (remote["psnr"], remote["ssim"], remote["num_gaussians"])
         assert remote["peak_memory_mb"] > 50  # the worker's engine process, not this driver
     assert (tmp_path / "cluster" / "accuracy_lego_200.md").is_file()
+
+
+SANTORINI = REPO.parent / "shared" / "data" / "photos_santorini"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not SANTORINI.is_dir(), reason=f"{SANTORINI} absent (../shared/data)")
+def test_an_sfm_job_on_the_cluster_names_the_local_photos(ray_cluster, tmp_path):
+    from gsgs_engine.job import Job
+
+    job = Job.create(tmp_path / "sfm", "sfm", data={"photos": str(SANTORINI)}, settings={"max_image_size": 480})
+    proc = gsgs("run-job", job.root, "--ray", ray_cluster["address"])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert job.status()["state"] == "ok", job.status()
+    cameras = json.loads((job.root / "result" / "cameras.json").read_text())
+    assert len(cameras) >= 2
+    for entry in cameras:  # the worker's copies are gone; the add-on shows the photos it has here
+        assert Path(entry["image"]).is_file(), entry["image"]
+        assert "gsgs_remote_" not in entry["image"]
+    assert json.loads((job.root / "job.json").read_text())["data"]["photos"] == str(SANTORINI)  # not rewritten here

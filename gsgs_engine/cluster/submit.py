@@ -127,12 +127,12 @@ def train_on_cluster(args: argparse.Namespace, argv: list[str], out: Path, resum
     return rc
 
 
-def _run(address: str, command, job, ship_state: bool, retries: int, echo=None) -> int:
+def _run(address: str, command, job, ship_state: bool, retries: int, echo=None, on_start=None) -> int:
     from gsgs_engine.cluster.remote import run_remote
 
     try:
         rc = run_remote(address, command, retries=retries, cancel_file=job.cancel_path, ship_state=ship_state,
-                        echo=echo)
+                        echo=echo, on_start=on_start)
     except KeyboardInterrupt:  # a second interrupt while the remote run was saving its checkpoint
         job.set_status("cancelled", "cancelled; the remote run was stopped")
         return 130
@@ -222,7 +222,30 @@ def job_on_cluster(job_dir: Path, address: str, num_cpus: float = 1.0, num_gpus:
                             no_sync=("job.json",), num_cpus=num_cpus, num_gpus=num_gpus, env=thread_env(num_cpus),
                             label=f"job {job.root}")
     job.set_status("running", f"{job.task} on the Ray cluster at {address}")
-    return _run(address, command, job, has_ckpt, retries, echo=echo)
+    worker: dict = {}
+    rc = _run(address, command, job, has_ckpt, retries, echo=echo, on_start=worker.update)
+    if worker.get("work"):
+        localise_paths(job.root / "result" / "cameras.json", worker["work"],
+                       {"job": job.root, **{k: v for k, v in sends.items() if isinstance(v, Path)}})
+    return rc
+
+
+def localise_paths(cameras_json: Path, remote_work: str, folders: dict[str, Path]) -> None:
+    """An SfM result names its photos by absolute path; those the worker wrote point into its own folders
+    ({remote_work}/NAME/...), which here are `folders[NAME]`."""
+    if not cameras_json.is_file():
+        return
+    from gsgs_engine.job import write_json_atomic
+
+    entries = json.loads(cameras_json.read_text())
+    prefix = remote_work.rstrip("/") + "/"
+    for entry in entries if isinstance(entries, list) else []:
+        image = entry.get("image") if isinstance(entry, dict) else None
+        if isinstance(image, str) and image.startswith(prefix):
+            name, _, rest = image[len(prefix):].partition("/")
+            if name in folders:
+                entry["image"] = str(Path(folders[name]) / rest)
+    write_json_atomic(cameras_json, entries)
 
 
 def echo_to(stream=None):
