@@ -25,11 +25,14 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--cpus", type=float, default=1)
     parser.add_argument("--temp-dir", default=None)
+    parser.add_argument("--client-port", type=int, default=None, help="also serve Ray Client (ray://) on this port")
     args = parser.parse_args()
     os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"  # every node on 127.0.0.1, nothing on the network
     from ray.cluster_utils import Cluster
 
     head_args = {"num_cpus": 0, "include_dashboard": False, "object_store_memory": 200 << 20}
+    if args.client_port:
+        head_args["ray_client_server_port"] = args.client_port
     if args.temp_dir:  # sessions, sockets and the "current cluster" file stay in the test's folder
         os.makedirs(os.path.join(args.temp_dir, "ray"), exist_ok=True)
         os.environ["RAY_TMPDIR"] = args.temp_dir
@@ -40,7 +43,7 @@ def main() -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    info = {"address": cluster.address,
+    info = {"address": cluster.address, "client_address": f"ray://127.0.0.1:{args.client_port}" if args.client_port else None,
             "nodes": [{"node_id": n.node_id, "pids": [p.process.pid for procs in n.all_processes.values()
                                                         for p in procs]} for n in nodes]}
     print(json.dumps(info), flush=True)

@@ -145,8 +145,14 @@ def ray_cluster(tmp_path_factory):
     pytest.importorskip("ray", reason="Ray is not installed (make test installs the [cluster] extra)")
     temp = tmp_path_factory.mktemp("ray")
     log = open(temp / "cluster.log", "w")
+    import socket
+
+    with socket.socket() as s:  # a free port for the Ray Client server (ray://)
+        s.bind(("127.0.0.1", 0))
+        client_port = s.getsockname()[1]
     proc = subprocess.Popen([sys.executable, str(REPO / "tests" / "ray_local_cluster.py"), "--workers", "2",
-                             "--cpus", "1", "--temp-dir", str(temp / "r")], stdout=subprocess.PIPE, stderr=log,
+                             "--cpus", "1", "--temp-dir", str(temp / "r"), "--client-port", str(client_port)],
+                            stdout=subprocess.PIPE, stderr=log,
                             text=True, env=ray_env())
     try:
         line = proc.stdout.readline()
@@ -199,6 +205,9 @@ def test_train_on_the_cluster_equals_the_local_run(ray_cluster, tmp_path):
     assert events[-1]["phase"] in ("done", "eval", "export") or events[-1]["step"] == events[-1]["total"]
     assert sorted(p.name for p in (tmp_path / "remote" / "renders").iterdir()) == \
         sorted(p.name for p in (tmp_path / "local" / "renders").iterdir())
+    client = gsgs("train", *common, "--ray", ray_cluster["client_address"], "--out", tmp_path / "client")
+    assert client.returncode == 0, client.stderr[-3000:]  # Ray Client (ray://HOST:PORT) works the same
+    assert (tmp_path / "client" / "point_cloud.ply").read_bytes() == (tmp_path / "local" / "point_cloud.ply").read_bytes()
 
 
 def _wait_for(predicate, timeout: float, what: str) -> None:
