@@ -441,3 +441,27 @@ def test_an_sfm_job_on_the_cluster_names_the_local_photos(ray_cluster, tmp_path)
         assert Path(entry["image"]).is_file(), entry["image"]
         assert "gsgs_remote_" not in entry["image"]
     assert json.loads((job.root / "job.json").read_text())["data"]["photos"] == str(SANTORINI)  # not rewritten here
+
+
+def test_a_worker_without_gsgs_or_with_another_version_is_one_clear_error():
+    from gsgs_engine import __version__
+    from gsgs_engine.cluster.remote import check_worker
+
+    check_worker({"version": __version__, "host": "n1"})
+    with pytest.raises(GsgsError, match=r"runs gsgs 0\.0\.1, this machine gsgs"):
+        check_worker({"version": "0.0.1", "host": "n1"})
+    with pytest.raises(GsgsError, match="has no gsgs engine.*GSGS_RAY_RUNTIME_ENV"):
+        check_worker({"version": None, "host": "n1", "python": "/usr/bin/python3",
+                      "import_error": "ModuleNotFoundError: No module named 'gsgs_engine'"})
+
+
+def test_the_worker_actor_needs_only_the_standard_library():
+    """It is sent by value and must start where gsgs is not installed (to say so)."""
+    code = ("import sys, importlib.util; spec = importlib.util.spec_from_file_location('w', sys.argv[1]); "
+            "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m); r = m.EngineRun(); "
+            "print(m.unpack(r.hello())[0]['version'])")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run([sys.executable, "-I", "-S", "-c", code, str(REPO / "gsgs_engine" / "cluster" / "worker.py")],
+                          capture_output=True, text=True, env=env, cwd="/", timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "None"  # -S: no site-packages, so no gsgs: reported, not raised
