@@ -26,7 +26,7 @@ import numpy as np
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
-from gsgs_engine.io.photos import PHOTO_EXTENSIONS, prepare_photos
+from gsgs_engine.io.photos import PHOTO_EXTENSIONS, prepare_photos, scan_photo_folder
 from gsgs_engine import sfm_strategies
 from gsgs_engine.sfm_strategies import STRATEGIES
 
@@ -150,17 +150,16 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
     unknown = sorted(set(strategies) - set(STRATEGIES))
     if unknown or not strategies:
         raise GsgsError(f"SfM strategies {unknown or 'none'}: choose one or more of {', '.join(STRATEGIES)}")
-    if not photo_dir.is_dir():
-        raise GsgsError(f"{photo_dir}: not a folder; pass the folder that holds the photos")
+    sources, _, unsupported = scan_photo_folder(photo_dir)
+    notes = [f"skipped {line}" for line in unsupported]
+    if len(sources) < 2:
+        raise GsgsError(f"{photo_dir}: found {len(sources)} image(s); structure from motion needs at least 2 "
+                        f"overlapping photos ({', '.join(PHOTO_EXTENSIONS)})"
+                        + (f"; {'; '.join(notes)}" if notes else ""))
     _prepare_out_dir(out_dir, photo_dir)
     # Photos as stored -> upright copies at the working size: what every later stage reads.
     prepared = prepare_photos(photo_dir, out_dir / UPRIGHT_DIR, max_image_size)
     names, skipped, sizes = prepared.names, prepared.skipped, prepared.sizes
-    notes = [f"skipped {line}" for line in prepared.unsupported]
-    if len(names) < 2:
-        raise GsgsError(f"{photo_dir}: found {len(names)} photo(s); structure from motion needs at least 2 "
-                        f"overlapping photos ({', '.join(PHOTO_EXTENSIONS)})"
-                        + (f"; {'; '.join(notes)}" if notes else ""))
     if prepared.summary():
         notes.append(prepared.summary())
         log.info("%s: %s", photo_dir, notes[-1])

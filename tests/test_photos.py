@@ -281,7 +281,7 @@ def test_blender_camera_backgrounds_show_the_rotated_photos_upright(solves):
                 turned = np.corrcoef(shown.ravel(), upright[::-1, ::-1].ravel())[0, 1]
                 print(f"{variant} {obj.name}: {w}x{h}, correlation with the upright photo {same:.3f}, "
                       f"turned 180 degrees {turned:.3f}")
-                assert same > 0.9 and turned < same - 0.3, (variant, obj.name, same, turned)
+                assert same > 0.85 and turned < same - 0.3, (variant, obj.name, same, turned)
     finally:
         gsgs_blender.unregister()
         bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -42,6 +42,7 @@ ORIENTATION = 0x0112  # EXIF tags (IFD0, and the Exif IFD 0x8769)
 EXIF_IFD = 0x8769
 PIXEL_X_DIMENSION, PIXEL_Y_DIMENSION = 0xA002, 0xA003
 FOCAL_PLANE_X_RESOLUTION, FOCAL_PLANE_Y_RESOLUTION = 0xA20E, 0xA20F
+KEPT_IFD0_TAGS = (0x010F, 0x0110, 0x0132)  # Make, Model, DateTime
 TURNS_90 = {5, 6, 7, 8}  # orientations whose upright picture swaps width and height
 DECODER_TURNS = {"HEIF", "TIFF"}  # formats whose decoder applies the orientation itself
 
@@ -134,11 +135,10 @@ class PreparedPhotos:
         return f"photos: {'; '.join(parts)}" if parts else ""
 
 
-def prepare_photos(photo_dir, out_dir, max_image_size: int) -> PreparedPhotos:
-    """Upright copies of the photos in `photo_dir`, no larger than `max_image_size` on their longest
-    side, written to `out_dir` (emptied first). A file that cannot be read is an error naming it
-    and the fix; a photo in a format that is not read is listed in `unsupported`."""
-    photo_dir, out_dir = Path(photo_dir), Path(out_dir)
+def scan_photo_folder(photo_dir) -> tuple[list[Path], list[str], list[str]]:
+    """(photo files, names of files that are not photos, "name: why; what to do" for photo files in
+    a format that is not read) directly in `photo_dir`, sorted by name; nothing is decoded."""
+    photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():
         raise GsgsError(f"{photo_dir}: not a folder; pass the folder that holds the photos")
     sources, skipped, unsupported = [], [], []
@@ -152,6 +152,15 @@ def prepare_photos(photo_dir, out_dir, max_image_size: int) -> PreparedPhotos:
             unsupported.append(f"{path.name}: {UNSUPPORTED[ext]}")
         else:
             skipped.append(path.name)
+    return sources, skipped, unsupported
+
+
+def prepare_photos(photo_dir, out_dir, max_image_size: int) -> PreparedPhotos:
+    """Upright copies of the photos in `photo_dir`, no larger than `max_image_size` on their longest
+    side, written to `out_dir` (emptied first). A file that cannot be read is an error naming it
+    and the fix; a photo in a format that is not read is listed in `unsupported`."""
+    out_dir = Path(out_dir)
+    sources, skipped, unsupported = scan_photo_folder(photo_dir)
     if out_dir.exists():
         shutil.rmtree(out_dir)
     out_dir.mkdir(parents=True)
@@ -215,18 +224,14 @@ def _prepare_one(path: Path, out_dir: Path, max_size: int, taken: set[str]) -> P
         scale = min(1.0, max_size / max(upright))
         size = (max(1, round(upright[0] * scale)), max(1, round(upright[1] * scale))) if scale < 1 else upright
         if orientation == 1 and scale == 1.0 and fmt in COLMAP_READABLE:
-            _check_decodes(image, path)
+            _decode(image, path)
             shutil.copyfile(path, out_dir / path.name)
             return PreparedPhoto(path.name, path.name, fmt, 1, stored, size, 1.0, True)
         if scale < 1 and fmt == "JPEG":  # decode at 1/2, 1/4 or 1/8 scale when that is still large enough
             image.draft(None, size[::-1] if turns else size)
-        try:
-            image.load()
-            exif = image.getexif()
-            turned = ImageOps.exif_transpose(image) if orientation != 1 and not decoder_turns else image
-        except (OSError, ValueError, SyntaxError) as exc:
-            raise GsgsError(f"{path}: cannot be decoded ({exc}); re-export it as JPEG or move it out of the "
-                            "folder") from None
+        _decode(image, path)
+        exif = image.getexif()
+        turned = ImageOps.exif_transpose(image) if orientation != 1 and not decoder_turns else image
         if turned.mode in WIDE_MODES:
             wide = np.asarray(turned, dtype=np.float64)
             peak = 255.0 if turned.mode in ("I", "F") and wide.max() <= 255 else 65535.0
@@ -256,7 +261,7 @@ def _prepare_one(path: Path, out_dir: Path, max_size: int, taken: set[str]) -> P
         image.close()
 
 
-def _check_decodes(image, path: Path) -> None:
+def _decode(image, path: Path) -> None:
     try:
         image.load()
     except (OSError, ValueError, SyntaxError) as exc:
@@ -274,13 +279,23 @@ def _copy_name(path: Path, ext: str, taken: set[str]) -> str:
     return name
 
 
-def _working_exif(exif, orientation: int, size: tuple[int, int], scale: float):
-    """The photo's EXIF for its upright working copy: orientation 1, pixel dimensions of the copy,
-    and the focal-plane resolution (pixels per unit on the sensor, which COLMAP may use to turn the
-    focal length in mm into pixels) scaled with the pixels and swapped when the picture turned."""
+def _working_exif(source, orientation: int, size: tuple[int, int], scale: float):
+    """The photo's EXIF for its upright working copy: the camera's make, model and date, orientation
+    1, and the Exif IFD (focal length, 35 mm equivalent: what COLMAP reads for a focal prior) with the
+    copy's pixel dimensions and the focal-plane resolution (pixels per unit on the sensor, which
+    COLMAP may use to turn millimetres into pixels) scaled with the pixels and swapped when the
+    picture turned. A TIFF's layout tags and any GPS position are left out."""
+    from PIL import Image
+
+    exif = Image.Exif()
+    for tag in KEPT_IFD0_TAGS:
+        if tag in source:
+            exif[tag] = source[tag]
     exif[ORIENTATION] = 1
-    sub = exif.get_ifd(EXIF_IFD)
+    sub = dict(source.get_ifd(EXIF_IFD))
     if sub:
+        exif.get_ifd(EXIF_IFD).update(sub)
+        sub = exif.get_ifd(EXIF_IFD)
         if PIXEL_X_DIMENSION in sub or PIXEL_Y_DIMENSION in sub:
             sub[PIXEL_X_DIMENSION], sub[PIXEL_Y_DIMENSION] = size
         x_res, y_res = sub.get(FOCAL_PLANE_X_RESOLUTION), sub.get(FOCAL_PLANE_Y_RESOLUTION)
