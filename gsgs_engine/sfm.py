@@ -79,6 +79,7 @@ class SfmResult:
     strategy: str = ""  # the mapping strategy whose model was kept (gsgs_engine.sfm_strategies)
     strategy_reason: str = ""  # why it was kept
     attempts: list[dict] = field(default_factory=list)  # every strategy tried: registered, points, error, s
+    photos_note: str = ""  # what was done to the photos as stored (turned, decoded, downscaled); also in notes
 
     @property
     def num_registered(self) -> int:
@@ -209,7 +210,7 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
                      views=views, skipped_files=skipped,
                      mean_reprojection_error=float(raw["mean_reprojection_error"]), report_path=report_path,
                      notes=notes, strategy=raw["strategy"], strategy_reason=raw["strategy_reason"],
-                     attempts=raw["attempts"])
+                     attempts=raw["attempts"], photos_note=prepared.summary())
 
 
 def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None,
@@ -307,7 +308,8 @@ def run_sfm_job(job) -> SfmResult:
     write_cameras_json(job.result_dir / "cameras.json", result.cameras, result.image_paths)
     write_point_ply(job.result_dir / "points.ply", result.points, result.point_colors)
     failed = "; ".join(f"{v.name}: {v.reason}" for v in result.failed)
-    job.emit("sfm", len(stages), len(stages), message=result.summary() + (f" ({failed})" if failed else ""),
+    job.emit("sfm", len(stages), len(stages), message=result.summary() + (f" ({failed})" if failed else "")
+             + (f"; {result.photos_note}" if result.photos_note else ""),
              stage="done", registered=result.num_registered, total_views=result.num_views)
     if result.num_registered < 2:
         raise GsgsError(f"{photos}: {result.summary()}; add photos that overlap more")

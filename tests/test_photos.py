@@ -229,6 +229,9 @@ def test_rotated_and_heic_photos_give_the_cameras_of_the_upright_ones(solves):
         assert [c.name for c in cams] == sorted(ref)  # frame_00.HEIC's copy is frame_00.jpg
         report = json.loads(result.report_path.read_text())
         assert [p["orientation"] for p in report["photos"]] == list(orientations)
+        assert result.photos_note in report["notes"] and "3 downscaled once to the working size" in result.photos_note
+        done = json.loads(job.progress_path.read_text().splitlines()[-1])
+        assert done["stage"] == "done" and result.photos_note in done["message"]  # what the add-on shows
         err = measured[variant] = pose_errors(cams, [ref[c.name] for c in cams])
         lines.append(f"{variant}: centres {err['max_centre_pct']:.3f}% of the rig, directions "
                      f"{err['max_rotation_deg']:.3f} deg, {cams[0].width}x{cams[0].height} fx {cams[0].fx:.1f} px, "
