@@ -147,6 +147,37 @@ def test_large_photo_is_downscaled_once_with_its_exif_focal_kept(tmp_path):
     print(f"\ntwo 12 MP JPEGs turned and downscaled to 1600 px in {seconds:.2f} s")
 
 
+def test_pycolmap_reads_the_phone_focal_length_from_the_upright_copies(tmp_path):
+    # The focal length a phone writes is SfM's focal prior (kept fixed for small sets): it must
+    # survive turning, HEIC decoding and downscaling. pycolmap runs in its own process (sfm.py).
+    import subprocess
+    import sys
+
+    upright = np.asarray(Image.fromarray(_pattern(128, 96)).resize((2048, 1536)))
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    phone = {"t920A": 4.25, "tA405": 26}
+    Image.fromarray(upright).save(photos / "a_upright.jpg", exif=_exif(1, **phone), quality=95)
+    _store(upright, photos / "b_turned.jpg", 6, quality=95)
+    Image.fromarray(np.ascontiguousarray(STORED[8](upright))).save(photos / "c_phone.heic", exif=_exif(8, **phone))
+    Image.fromarray(np.ascontiguousarray(STORED[6](upright))).save(photos / "d_phone.jpg", exif=_exif(6, **phone))
+    prepared = prepare_photos(photos, tmp_path / "upright", max_image_size=1600)
+    assert prepared.names == ["a_upright.jpg", "b_turned.jpg", "c_phone.jpg", "d_phone.jpg"]
+    code = ("import sys, pycolmap\n"
+            "for path in sys.argv[1:]:\n"
+            "    bitmap = pycolmap.Bitmap.read(path, False)\n"
+            "    print(bitmap.width, bitmap.height, bitmap.exif_focal_length())\n")
+    done = subprocess.run([sys.executable, "-c", code, *(str(prepared.folder / n) for n in prepared.names)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = [line.split() for line in done.stdout.splitlines()]
+    assert [r[:2] for r in rows] == [["1600", "1200"]] * 4
+    focal = {name: None if r[2] == "None" else float(r[2]) for name, r in zip(prepared.names, rows)}
+    assert focal["b_turned.jpg"] is None  # no EXIF focal length in that photo: none is invented
+    assert focal["a_upright.jpg"] > 0
+    assert focal["c_phone.jpg"] == pytest.approx(focal["a_upright.jpg"]) == focal["d_phone.jpg"]
+
+
 def test_unreadable_and_unsupported_files_are_named_with_the_fix(tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
