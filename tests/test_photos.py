@@ -131,7 +131,8 @@ def test_large_photo_is_downscaled_once_with_its_exif_focal_kept(tmp_path):
     prepared = prepare_photos(photos, tmp_path / "upright", max_image_size=1600)
     seconds = time.perf_counter() - started
     p = {p.source: p for p in prepared.photos}["portrait.jpg"]
-    assert (p.stored_size, p.size, p.scale, p.orientation) == ((4032, 3024), (1200, 1600), pytest.approx(1200 / 3024), 6)
+    assert (p.stored_size, p.size, p.orientation) == ((4032, 3024), (1200, 1600), 6)
+    assert p.scale == pytest.approx(1200 / 3024)
     with Image.open(prepared.folder / p.name) as im:
         assert im.size == (1200, 1600)
         exif_ifd = im.getexif().get_ifd(0x8769)
@@ -274,8 +275,9 @@ def test_rotated_and_heic_photos_give_the_cameras_of_the_upright_ones(solves):
         err = measured[variant]
         assert err["max_centre_pct"] < 1.0 and err["max_rotation_deg"] < 1.0, (variant, err)
         cams = {c.name: c for c in solves[variant][1].cameras}
-        assert all((c.width, c.height) == (cams[n].width, cams[n].height) and c.fx == pytest.approx(cams[n].fx, rel=1e-3)
-                   for n, c in ref.items()), variant
+        for name, c in ref.items():
+            mine = cams[name]
+            assert (mine.width, mine.height, mine.fx) == (c.width, c.height, pytest.approx(c.fx, rel=1e-3)), variant
     # A re-encoded portrait JPEG: no further off than re-encoding alone moves the solve, and far
     # from a camera turned by 90 degrees.
     noise = measured["requality"]

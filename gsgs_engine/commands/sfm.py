@@ -10,7 +10,8 @@ from gsgs_engine.sfm import CAMERA_MODELS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("photos", help="folder of overlapping photos (jpg, png, tif, bmp, webp, heic; EXIF orientation applied)")
+    parser.add_argument("photos", help="folder of overlapping photos (jpg, png, tif, bmp, webp, heic; "
+                                       "turned upright by their EXIF orientation)")
     parser.add_argument("--out", required=True, help="output folder: images/, sparse/0/, sfm_report.json")
     parser.add_argument("--camera-model", default="SIMPLE_RADIAL", choices=CAMERA_MODELS, metavar="MODEL",
                         help="COLMAP camera model to calibrate (default SIMPLE_RADIAL; "
