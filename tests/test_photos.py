@@ -98,6 +98,25 @@ def test_every_exif_orientation_gives_the_upright_picture(tmp_path):
                                   "(orientation 2: 1, 3: 2, 4: 1, 5: 1, 6: 3, 7: 2, 8: 1)")
 
 
+def test_a_transparent_tiff_is_turned_exactly_or_refused_by_name(tmp_path):
+    # Pillow 13 decodes an RGBA TIFF turned by 90 degrees wrongly; never a wrong copy in silence.
+    upright = _pattern(alpha=True)
+    outcomes = {}
+    for o in STORED:
+        photos = tmp_path / f"o{o}"
+        photos.mkdir()
+        _store(upright, photos / "a.tif", o)
+        try:
+            prepared = prepare_photos(photos, tmp_path / f"upright{o}", max_image_size=1600)
+        except GsgsError as exc:
+            assert str(exc).startswith(f"{photos / 'a.tif'}: decoded ") and "convert the photo" in str(exc)
+            outcomes[o] = "refused"
+            continue
+        np.testing.assert_array_equal(_pixels(prepared.folder / prepared.names[0], "RGBA"), upright)
+        outcomes[o] = "exact"
+    assert [o for o, outcome in outcomes.items() if outcome == "exact"][:4] == [1, 2, 3, 4], outcomes
+
+
 def test_heic_is_read_and_turned_upright(tmp_path):
     upright = _pattern(128, 80)
     photos = tmp_path / "photos"
