@@ -318,9 +318,11 @@ def _update_display(self, context) -> None:
 
 class GSGS_SceneSettings(bpy.types.PropertyGroup):
     photos_dir: StringProperty(name="Photos", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
-                               description="Folder of photos to reconstruct")
+                               description="Folder of photos to reconstruct (JPEG, PNG, TIFF, WebP, HEIC; "
+                                           "turned upright by their EXIF orientation)")
     max_image_size: IntProperty(name="Max Image Size", default=1600, min=64, max=8192,
-                                description="SfM works on photos downscaled to this longer side")
+                                description="Larger photos are downscaled once to this longer side; SfM, "
+                                            "the camera backgrounds and training use those copies")
     sfm_job: StringProperty(name="SfM Job", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                             description="Job folder of the camera solve")
     camera_collection: PointerProperty(name="Cameras", type=bpy.types.Collection,

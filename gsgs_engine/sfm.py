@@ -26,12 +26,12 @@ import numpy as np
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
+from gsgs_engine.io.photos import PHOTO_EXTENSIONS, prepare_photos, scan_photo_folder
 from gsgs_engine import sfm_strategies
 from gsgs_engine.sfm_strategies import STRATEGIES
 
 log = logging.getLogger(__name__)
 
-IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 # COLMAP camera models whose images pycolmap can undistort to a pinhole camera.
 CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
                  "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE", "FOV", "THIN_PRISM_FISHEYE")
@@ -79,6 +79,7 @@ class SfmResult:
     strategy: str = ""  # the mapping strategy whose model was kept (gsgs_engine.sfm_strategies)
     strategy_reason: str = ""  # why it was kept
     attempts: list[dict] = field(default_factory=list)  # every strategy tried: registered, points, error, s
+    photos_note: str = ""  # what was done to the photos as stored (turned, decoded, downscaled); also in notes
 
     @property
     def num_registered(self) -> int:
@@ -134,7 +135,10 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
     Writes a COLMAP folder: out_dir/images (undistorted), out_dir/sparse/0/*.bin (PINHOLE),
     out_dir/distorted/ (database and raw models) and out_dir/sfm_report.json. Views that do
     not register are reported with a reason; raises SfmFailed when no model at all is built.
-    `max_image_size` caps the longest side used for features and for the undistorted images.
+    The photos are first turned upright by their EXIF orientation, decoded (HEIC too) and
+    downscaled to `max_image_size` on their longest side, once, into out_dir/photos_upright
+    (gsgs_engine.io.photos.prepare_photos; the report's "photos" says what was done to each):
+    SfM, and so the cameras and the undistorted images everything else reads, see those.
     `strategies`: which mapping strategies may run (gsgs_engine.sfm_strategies; all by default);
     the report names the one kept and every attempt. Same photos and settings, same cameras.
     """
@@ -147,18 +151,25 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
     unknown = sorted(set(strategies) - set(STRATEGIES))
     if unknown or not strategies:
         raise GsgsError(f"SfM strategies {unknown or 'none'}: choose one or more of {', '.join(STRATEGIES)}")
-    names, skipped, sizes = list_photos(photo_dir)
-    if len(names) < 2:
-        raise GsgsError(f"{photo_dir}: found {len(names)} image(s); structure from motion needs at least 2 "
-                        f"overlapping photos ({', '.join(IMAGE_EXTENSIONS)})")
+    sources, _, unsupported = scan_photo_folder(photo_dir)
+    notes = [f"skipped {line}" for line in unsupported]
+    if len(sources) < 2:
+        raise GsgsError(f"{photo_dir}: found {len(sources)} image(s); structure from motion needs at least 2 "
+                        f"overlapping photos ({', '.join(PHOTO_EXTENSIONS)})"
+                        + (f"; {'; '.join(notes)}" if notes else ""))
     _prepare_out_dir(out_dir, photo_dir)
-    notes = []
+    # Photos as stored -> upright copies at the working size: what every later stage reads.
+    prepared = prepare_photos(photo_dir, out_dir / UPRIGHT_DIR, max_image_size)
+    names, skipped, sizes = prepared.names, prepared.skipped, prepared.sizes
+    if prepared.summary():
+        notes.append(prepared.summary())
+        log.info("%s: %s", photo_dir, notes[-1])
     if single_camera and len(set(sizes.values())) > 1:
         # COLMAP refuses every photo whose size differs from the first under one shared camera.
         single_camera = False
         notes.append(f"the photos have {len(set(sizes.values()))} different sizes, so each photo got its own camera")
         log.info("%s: %s", photo_dir, notes[-1])
-    params = {"photo_dir": str(photo_dir.resolve()), "names": names, "out_dir": str(out_dir.resolve()),
+    params = {"photo_dir": str(prepared.folder.resolve()), "names": names, "out_dir": str(out_dir.resolve()),
               "camera_model": camera_model, "single_camera": bool(single_camera),
               "max_image_size": int(max_image_size), "num_threads": int(num_threads),
               "strategies": [s for s in STRATEGIES if s in strategies]}
@@ -174,7 +185,9 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
               "max_image_size": int(max_image_size), "models": raw["model_sizes"],
               "num_points": int(len(raw.get("points", ()))),
               "mean_reprojection_error": raw.get("mean_reprojection_error"),
-              "seconds": round(time.time() - started, 2), "skipped_files": skipped, "notes": notes,
+              "seconds": round(time.time() - started, 2), "skipped_files": skipped,
+              "unsupported_files": prepared.unsupported, "notes": notes,
+              "working_photos": str(prepared.folder), "photos": [p.to_dict() for p in prepared.photos],
               "views": [asdict(v) for v in views], "log": str(log_path)}
     report_path = out_dir / "sfm_report.json"
     report_path.write_text(json.dumps(report, indent=2))
@@ -197,7 +210,7 @@ def run_sfm(photo_dir: str | os.PathLike, out_dir: str | os.PathLike, camera_mod
                      views=views, skipped_files=skipped,
                      mean_reprojection_error=float(raw["mean_reprojection_error"]), report_path=report_path,
                      notes=notes, strategy=raw["strategy"], strategy_reason=raw["strategy_reason"],
-                     attempts=raw["attempts"])
+                     attempts=raw["attempts"], photos_note=prepared.summary())
 
 
 def triangulate_known_poses(views, out_dir: str | os.PathLike | None = None,
@@ -295,7 +308,8 @@ def run_sfm_job(job) -> SfmResult:
     write_cameras_json(job.result_dir / "cameras.json", result.cameras, result.image_paths)
     write_point_ply(job.result_dir / "points.ply", result.points, result.point_colors)
     failed = "; ".join(f"{v.name}: {v.reason}" for v in result.failed)
-    job.emit("sfm", len(stages), len(stages), message=result.summary() + (f" ({failed})" if failed else ""),
+    job.emit("sfm", len(stages), len(stages), message=result.summary() + (f" ({failed})" if failed else "")
+             + (f"; {result.photos_note}" if result.photos_note else ""),
              stage="done", registered=result.num_registered, total_views=result.num_views)
     if result.num_registered < 2:
         raise GsgsError(f"{photos}: {result.summary()}; add photos that overlap more")
@@ -306,37 +320,6 @@ def run_sfm_job(job) -> SfmResult:
 # ---------------------------------------------------------------------------------------
 # Plain files (numpy only, no pycolmap)
 # ---------------------------------------------------------------------------------------
-MIN_PHOTO_SIDE = 32  # SIFT finds nothing below this; pycolmap crashed (exit -11) on 1x1 photos
-
-
-def list_photos(photo_dir: Path) -> tuple[list[str], list[str], dict[str, tuple[int, int]]]:
-    """(image names, skipped non-image names, name -> (width, height)) in a folder; a photo
-    that cannot be decoded is an error naming it, since SfM on the rest would lose a view."""
-    if not photo_dir.is_dir():
-        raise GsgsError(f"{photo_dir}: not a folder; pass the folder that holds the photos")
-    from gsgs_engine.io.images import decode_image
-
-    names, skipped, sizes = [], [], {}
-    for path in sorted(photo_dir.iterdir()):
-        if path.name.startswith(".") or path.is_dir():
-            continue
-        if path.suffix.lower() not in IMAGE_EXTENSIONS:
-            skipped.append(path.name)
-            continue
-        try:
-            img = decode_image(path)  # the whole file: a truncated JPEG is refused, not read as grey rows
-        except GsgsError as exc:
-            reason = str(exc).removeprefix(f"{path}: ")
-            raise GsgsError(f"{path}: cannot be read as an image ({reason}; corrupt or not really "
-                            f"{path.suffix.lstrip('.').upper()}); re-export it or move it out of the folder") from None
-        if min(img.shape[:2]) < MIN_PHOTO_SIDE:
-            raise GsgsError(f"{path}: the photo is {img.shape[1]}x{img.shape[0]} pixels; structure from motion needs "
-                            f"at least {MIN_PHOTO_SIDE} pixels on each side to find features: use the full-size photos")
-        names.append(path.name)
-        sizes[path.name] = (int(img.shape[1]), int(img.shape[0]))
-    return names, skipped, sizes
-
-
 def write_cameras_json(path: Path, cameras: Sequence[Camera], image_paths: Sequence[Path]) -> None:
     entries = [{**cam.to_dict(), "image": str(Path(p).resolve())} for cam, p in zip(cameras, image_paths)]
     Path(path).write_text(json.dumps(entries, indent=2))
@@ -399,7 +382,8 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
-_SFM_OUTPUTS = ("distorted", "sparse", "images", "stereo", "sfm_report.json", "colmap.log",
+UPRIGHT_DIR = "photos_upright"  # the photos turned upright and downscaled once (gsgs_engine.io.photos)
+_SFM_OUTPUTS = (UPRIGHT_DIR, "distorted", "sparse", "images", "stereo", "sfm_report.json", "colmap.log",
                 "run-colmap-geometric.sh", "run-colmap-photometric.sh")
 _SFM_MARKER = ".gsgs_sfm"
 

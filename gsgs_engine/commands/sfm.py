@@ -10,13 +10,15 @@ from gsgs_engine.sfm import CAMERA_MODELS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("photos", help="folder of overlapping photos (jpg, png, tif, bmp)")
+    parser.add_argument("photos", help="folder of overlapping photos (jpg, png, tif, bmp, webp, heic; "
+                                       "turned upright by their EXIF orientation)")
     parser.add_argument("--out", required=True, help="output folder: images/, sparse/0/, sfm_report.json")
     parser.add_argument("--camera-model", default="SIMPLE_RADIAL", choices=CAMERA_MODELS, metavar="MODEL",
                         help="COLMAP camera model to calibrate (default SIMPLE_RADIAL; "
                              f"one of {', '.join(CAMERA_MODELS)})")
     parser.add_argument("--max-image-size", type=int, default=1600,
-                        help="longest image side used for features and the undistorted images (default 1600)")
+                        help="larger photos are downscaled once to this longest side, used for features and the "
+                             "undistorted images (default 1600)")
     parser.add_argument("--per-image-cameras", action="store_true",
                         help="calibrate each photo's intrinsics separately (photos from different cameras or zoom)")
 
