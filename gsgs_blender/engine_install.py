@@ -109,15 +109,18 @@ def is_ours(python: str, folder: str = "") -> bool:
 
 
 def remove_engines(folder: str = "", keep: Path | None = None) -> list[Path]:
-    """Delete the engines in `folder` (all but `keep`) and leftovers of interrupted installs."""
+    """Delete the engines in `folder` (all but `keep`), leftovers of interrupted installs and the
+    progress files and logs of earlier installs; the environments deleted."""
     root = engines_dir(folder)
     gone = []
     for path in sorted(root.glob("engine-*")) if root.is_dir() else []:
-        if keep is not None and path.resolve() == keep.resolve():
+        if keep is not None and (path.name == keep.name or path.name.startswith(keep.name + ".install.")):
             continue
         if path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
             gone.append(path)
+        else:
+            path.unlink(missing_ok=True)
     return gone
 
 

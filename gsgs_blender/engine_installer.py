@@ -125,17 +125,21 @@ def compiler() -> str | None:
     return next((shutil.which(n) for n in names if shutil.which(n)), None)
 
 
+# pip's words when the index cannot be reached, the most telling first
+OFFLINE_SIGNS = ("Connection refused", "Name or service not known", "Temporary failure in name resolution",
+                 "Could not resolve host", "Network is unreachable", "No route to host", "timed out",
+                 "Failed to establish a new connection", "NewConnectionError", "Max retries exceeded")
+
+
 def pip_failure(step: str, output: str, index: str | None) -> str:
     """One line: what pip could not do, and the fix."""
     errors = [ln[len("ERROR: "):].strip() for ln in output.splitlines() if ln.startswith("ERROR: ")]
     errors = [e for e in errors if not e.startswith("Ignored the following")] or errors
-    offline = re.search(r"(NewConnectionError|Failed to establish a new connection|Name or service not known|"
-                        r"Temporary failure in name resolution|Could not resolve host|Connection refused|"
-                        r"Network is unreachable|timed out|Max retries exceeded)", output)
+    offline = next((m for m in (re.search(p, output) for p in OFFLINE_SIGNS) if m), None)
     where = index or "pip's configured package index"
     cause = errors[0] if errors else (output.strip().splitlines() or ["no output"])[-1]
     if offline:
-        return (f"{step}: pip could not reach {where} ({offline.group(1)}): {cause}. Fix: connect to the "
+        return (f"{step}: pip could not reach {where} ({offline.group(0)}): {cause}. Fix: connect to the "
                 "network or set Package Index to a reachable mirror, then Install Engine again; or point "
                 "Engine Python at an existing environment with the engine")
     if "No space left" in output:
