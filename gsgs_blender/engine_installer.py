@@ -84,7 +84,8 @@ def torch_choice(build: str, torch_index: str, gpu: str | None) -> tuple[str | N
         return torch_index or None, f"torch as the package index serves it ({why})"
     if build == "cpu":
         url = torch_index or TORCH_CPU_INDEX
-        return url, f"the CPU build of torch from {url}: {why}; it is about 10x smaller than the CUDA build"
+        return url, (f"the CPU build of torch from {url}: {why} (torch 2.13 on Linux: a 0.19 GB wheel; the CUDA "
+                     "build and its CUDA libraries are about 2.9 GB)")
     url = torch_index or (TORCH_CUDA_INDEX_WINDOWS if os.name == "nt" else None)
     return url, f"the CUDA build of torch from {url or 'the package index'}: {why}"
 
@@ -162,6 +163,8 @@ class Installer:
         self.cancelled = False
         self.last_emit = 0.0
         self.raw_progress = False
+        self.step_seconds: dict[str, float] = {}
+        self.step_start = time.monotonic()
 
     # -- output -----------------------------------------------------------------------------------
     def emit(self, force: bool = False, **extra) -> None:
@@ -179,10 +182,16 @@ class Installer:
             fh.write(text if text.endswith("\n") else text + "\n")
 
     def begin(self, name: str) -> None:
+        self.end_step()
         n = next(i for i, (key, _) in enumerate(STEPS, 1) if key == name)
         self.step = (name, n, dict(STEPS)[name])
         self.log(f"== step {n}/{len(STEPS)} {name}: {dict(STEPS)[name]} ({time.ctime()})")
         self.emit(force=True)
+
+    def end_step(self) -> None:
+        if self.step[0]:
+            self.step_seconds[self.step[0]] = round(time.monotonic() - self.step_start, 1)
+        self.step_start = time.monotonic()
 
     # -- running commands -------------------------------------------------------------------------
     def run(self, argv: list[str], env: dict | None = None) -> tuple[int, str]:
@@ -296,9 +305,10 @@ class Installer:
             tail = (out.strip().splitlines() or ["no output"])[-1]
             raise StepError(f"verify: the new environment cannot import the engine ({tail}); see {self.log_path}")
         versions = json.loads(line.split(" ", 1)[1])
+        self.end_step()
         record = {"python": str(self.python), "base_python": sys.executable, "torch_build": why,
                   "versions": versions, "warnings": self.warnings, "seconds": round(time.monotonic() - start, 1),
-                  "downloaded_mb": round(self.mb, 1), "installed": time.strftime("%Y-%m-%d %H:%M:%S")}
+                  "downloaded_mb": round(self.mb, 1), "step_seconds": self.step_seconds, "installed": time.strftime("%Y-%m-%d %H:%M:%S")}
         (self.env / MARKER).write_text(json.dumps(record, indent=1))
         return record
 
@@ -317,7 +327,8 @@ class Installer:
             record = self.install()
             final = {"state": "ok", "message": f"engine installed in {self.env} ({record['seconds']:.0f} s, "
                      f"{record['downloaded_mb']:.0f} MB downloaded); {record['torch_build']}",
-                     "python": str(self.python), "warnings": self.warnings, "versions": record["versions"]}
+                     "python": str(self.python), "warnings": self.warnings, "versions": record["versions"],
+                     "step_seconds": self.step_seconds}
         except Cancelled:
             final = {"state": "cancelled", "message": "Install Engine cancelled; nothing was changed"}
         except StepError as exc:

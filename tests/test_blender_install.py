@@ -111,6 +111,15 @@ def test_an_unsupported_python_is_refused_before_anything_is_made(tmp_path):
     assert final["state"] == "error" and "is Python 3.10, the engine needs" in final["message"]
 
 
+def test_no_compiler_is_found_on_an_empty_path_and_the_cost_is_stated(tmp_path, monkeypatch):
+    assert engine_installer.compiler() is not None or pytest.skip("no C++ compiler on this machine")
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.delenv("CXX", raising=False)
+    assert engine_installer.compiler() is None
+    assert "reference (pure torch) rasteriser" in engine_installer.NO_COMPILER_COST
+    assert "10-30x slower" in engine_installer.NO_COMPILER_COST
+
+
 @pytest.mark.slow
 def test_check_engine_reports_a_version_mismatch(tmp_path):
     from gsgs_blender.preferences import check_engine
@@ -221,6 +230,7 @@ def test_install_engine_from_the_package_index(installed):
     assert installed["engines_dir"].startswith(installed["blender_user"])  # the extension's user folder
     assert inst["leftovers"] == [Path(inst["env"]).name]
     assert inst["final"]["state"] == "ok" and inst["final"]["warnings"] == [], inst["final"]
+    assert list(inst["final"]["step_seconds"]) == [name for name, _ in engine_installer.STEPS]
     assert inst["kernel_built"] and inst["lpips"] == ["lpips_v0.1_alex.safetensors", "lpips_v0.1_vgg.safetensors"]
     after = installed["after_install"]
     assert after["ok"], after["report"]
@@ -240,3 +250,27 @@ def test_photos_to_splats_with_the_installed_engine(installed):
     python = installed["install"]["final"]["python"]
     assert installed["job_pythons"] == {"sfm_job": python, "train_job": python}
     assert '"backend": "cpu"' in json.dumps(installed["metrics"])
+
+
+def test_preferences_offer_install_engine_with_its_settings(tmp_path):
+    from test_blender_addon import _Layout
+
+    from gsgs_blender import engine_install, preferences
+
+    log: list = []
+    engine_install.draw_preferences(preferences._FALLBACK, _Layout(log))
+    props = [args[1] for name, args, _ in log if name == "prop"]
+    assert props == ["install_python", "torch_build", "install_index_url", "torch_index_url"]
+    ops = [(args[0], kw.get("text")) for name, args, kw in log if name == "operator"]
+    buttons = {"gsgs.install_engine": "Reinstall Engine" if engine_install.installed_engines() else "Install Engine"}
+    assert dict(ops[:1]) == buttons
+    # registered, the preferences carry the install settings (mixed in) next to their own
+    import gsgs_blender
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    gsgs_blender.register()
+    try:
+        rna = set(preferences.GSGS_AddonPreferences.bl_rna.properties.keys())
+    finally:
+        gsgs_blender.unregister()
+    assert {"python_path", "engine_root", "install_python", "torch_build", "install_index_url", "torch_index_url"} <= rna
