@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import base64
 import hashlib
+import importlib.util
 import io
 import os
 import re
@@ -112,14 +113,15 @@ def build_engine_wheel(version: str, out_dir: Path) -> Path:
     # setuptools packs whatever build/lib holds: a module deleted from the sources must not come back from there
     shutil.rmtree(REPO / "build" / "lib", ignore_errors=True)
     with tempfile.TemporaryDirectory(prefix="gsgs_wheel_") as tmp:
-        proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+        # setuptools of this Python when it has one (no network); else pip fetches it into an isolated build
+        isolation = [] if importlib.util.find_spec("setuptools") is None else ["--no-build-isolation"]
+        proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", *isolation,
                                "--wheel-dir", tmp, str(REPO)], capture_output=True, text=True, env=env,
                               cwd=tmp)
         built = sorted(Path(tmp).glob(f"gsgs-{version}-*.whl"))
         if proc.returncode != 0 or not built:
             tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-            raise BuildError(f"pip wheel of the engine failed: {' | '.join(tail)}; `{sys.executable} -m pip "
-                             "install setuptools wheel` and build again")
+            raise BuildError(f"pip wheel of the engine failed: {' | '.join(tail)}")
         out_dir.mkdir(parents=True, exist_ok=True)
         target = out_dir / built[0].name
         target.write_bytes(built[0].read_bytes())
