@@ -181,7 +181,7 @@ class InstallRun:
         rc = self.process.poll()
         if rc is None:
             if self.cancel_at is not None and time.monotonic() - self.cancel_at > KILL_GRACE_S:
-                self.process.kill()
+                self._signal(signal.SIGKILL if os.name != "nt" else None)
             return
         self._read()
         state = self.final.get("state")
@@ -201,11 +201,15 @@ class InstallRun:
         if self.finished or self.cancel_at is not None:
             return
         self.cancel_at = time.monotonic()
+        self._signal(signal.SIGTERM if os.name != "nt" else None)
+
+    def _signal(self, sig) -> None:
+        """`sig` to the installer's whole process group (its pip too); Windows: terminate the installer."""
         try:
-            if os.name == "nt":
+            if sig is None:
                 self.process.terminate()
             else:
-                os.killpg(self.process.pid, signal.SIGTERM)
+                os.killpg(self.process.pid, sig)
         except (ProcessLookupError, PermissionError):
             pass
 

@@ -32,8 +32,8 @@ class GSGS_OT_install_engine(bpy.types.Operator):
     bl_label = "Install Engine"
     bl_description = ("Make a Python environment for the engine in the add-on's user folder: torch (CPU build, or "
                       "CUDA with an NVIDIA GPU), pycolmap, OpenCV, OpenEXR, the engine and its compiled kernel, "
-                      "downloaded with pip (several hundred MB). Runs in the background; then Engine Python points "
-                      "at it and Check Engine runs. A failure or Cancel changes nothing")
+                      "downloaded with pip (about 1.3 GB on disk with the CPU build). Runs in the background; then "
+                      "Engine Python points at it and Check Engine runs. A failure or Cancel changes nothing")
 
     folder: bpy.props.StringProperty(
         name="Folder", default="", subtype="DIR_PATH", options={"SKIP_SAVE", "HIDDEN"},

@@ -1,12 +1,13 @@
 """Run by tests/test_blender_install.py in its own process (the real bpy module, a fresh HOME):
 
-    python install_engine_run.py ZIP PHOTOS JOBS WORKING_PYTHON WORKING_ENGINE_ROOT
+    python install_engine_run.py ZIP PHOTOS JOBS WORKING_PYTHON WORKING_ENGINE_ROOT TORCH_BUILD
 
 Installs the extension zip as "Install from Disk" does, sets Engine Python to a working engine, then
 1. Install Engine with an unreachable Package Index (must fail, changing nothing),
 2. Install Engine cancelled during its torch step (must change nothing),
-3. Install Engine from the package index (torch as the index serves it: PyTorch's CPU index is not
-   reachable from CI; pip's configured index and find-links are), timed, its disk use measured,
+3. Install Engine from the package index (torch: TORCH_BUILD, "cpu" where PyTorch's CPU index can be
+   reached, else "index", torch as pip's configured index and find-links serve it), timed, its disk
+   use measured,
 4. Check Engine, and photos -> cameras -> train (30 steps) -> import through the add-on's operators
    with the engine it installed.
 Prints `RESULT <json>` last; the test asserts on it. Not collected by pytest (no test_ prefix).
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import bpy
 
-ZIP, PHOTOS, JOBS, WORKING_PYTHON, WORKING_ROOT = sys.argv[1:6]
+ZIP, PHOTOS, JOBS, WORKING_PYTHON, WORKING_ROOT, TORCH_BUILD = sys.argv[1:7]
 ADDON = "bl_ext.user_default.gsgs"
 result: dict = {}
 
@@ -51,7 +52,7 @@ prefs = bpy.context.preferences.addons[ADDON].preferences
 engine_install = sys.modules[f"{ADDON}.engine_install"]
 ops_engine = sys.modules[f"{ADDON}.ops_engine"]
 prefs.python_path, prefs.engine_root, prefs.jobs_dir = WORKING_PYTHON, WORKING_ROOT, JOBS
-prefs.torch_build = "index"
+prefs.torch_build = TORCH_BUILD
 result["engines_dir"] = str(engine_install.engines_dir())
 result["before"] = check()
 

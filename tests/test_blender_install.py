@@ -173,6 +173,18 @@ def test_the_engine_installs_on_python_313_apart_from_torch(tmp_path):
 
 # -- the artist's path, in one Blender process (one installed environment for every assertion) ----
 
+def _torch_build() -> str:
+    """The default CPU build where PyTorch's CPU index answers; else torch as pip's own index serves it
+    (this machine and its CI: download.pytorch.org is not reachable, pip's find-links has the CPU wheel)."""
+    import urllib.request
+
+    try:
+        urllib.request.urlopen(engine_installer.TORCH_CPU_INDEX + "/torch/", timeout=10).close()
+        return "cpu"
+    except OSError:
+        return "index"
+
+
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("install_engine")
@@ -187,13 +199,15 @@ def installed(tmp_path_factory):
            **{k: v for k, v in os.environ.items() if k.startswith("PIP_") or k in ("SSL_CERT_FILE", "TMPDIR")}}
     if pip_cache and "PIP_CACHE_DIR" not in env:
         env["PIP_CACHE_DIR"] = pip_cache
+    torch_build = _torch_build()
     out = subprocess.run([sys.executable, str(REPO / "tests" / "install_engine_run.py"), str(zip_path), str(photos),
-                          str(tmp / "jobs"), sys.executable, str(REPO)],
+                          str(tmp / "jobs"), sys.executable, str(REPO), torch_build],
                          capture_output=True, text=True, timeout=2400, cwd=tmp, env=env)
     line = next((ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")), None)
     assert line is not None, out.stdout[-4000:] + out.stderr[-4000:]
     result = json.loads(line[len("RESULT "):])
     result["blender_user"] = str(tmp / "blender_user")
+    result["torch_build"] = torch_build
     print("install_engine_run: " + json.dumps(result, indent=1))  # install time and disk use, with -s
     return result
 
