@@ -60,7 +60,8 @@ class InstallPreferences:
     install_index_url: StringProperty(
         name="Package Index", default="",
         description="Package index URL for every pip step of Install Engine (a mirror, a local index); "
-                    "empty: pip's own configuration (PyPI unless pip.conf or PIP_INDEX_URL says otherwise)")
+                    "empty: pip's own configuration (PyPI unless pip.conf or PIP_INDEX_URL says otherwise). "
+                    "Extra indexes and find-links from pip's configuration still apply")
     torch_build: EnumProperty(name="Torch Build", items=TORCH_BUILDS, default="auto",
                               description="Which torch Install Engine installs")
     torch_index_url: StringProperty(

@@ -288,3 +288,50 @@ def test_preferences_offer_install_engine_with_its_settings(tmp_path):
     finally:
         gsgs_blender.unregister()
     assert {"python_path", "engine_root", "install_python", "torch_build", "install_index_url", "torch_index_url"} <= rna
+
+
+@pytest.mark.slow
+def test_the_ui_timer_follows_an_install_to_its_end(tmp_path, monkeypatch):
+    """Interactive Blender's path, with the timer driven directly: while the installer runs, the
+    preferences draw its step and a Cancel button; the timer settles it (here an unreachable
+    index: a real venv, a real pip) and fires on_finish once; the result is drawn as one line."""
+    import time
+
+    from test_blender_addon import _Layout
+
+    from gsgs_blender import engine_install, preferences
+
+    prefs = type("Prefs", (), {**{k: getattr(preferences._FALLBACK, k) for k in dir(preferences._FALLBACK)
+                                  if not k.startswith("_")}, "install_index_url": "http://127.0.0.1:9/simple"})()
+    # pip sees only the unreachable index: no pip.conf extra index or find-links answers in its place
+    monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)
+    monkeypatch.delenv("PIP_FIND_LINKS", raising=False)
+    monkeypatch.delenv("PIP_EXTRA_INDEX_URL", raising=False)
+    finished = []
+    run = engine_install.start(prefs, folder=str(tmp_path), on_finish=finished.append, use_timer=False)
+    try:
+        with pytest.raises(Exception, match="already running"):
+            engine_install.start(prefs, folder=str(tmp_path), use_timer=False)
+        while not run.last_event and run.process.poll() is None:
+            run.poll()
+            time.sleep(0.1)
+        log: list = []
+        engine_install.draw_preferences(prefs, _Layout(log))
+        assert [args[0] for name, args, _ in log if name == "operator"] == ["gsgs.cancel_engine_install"]
+        assert any(name == "progress" and kw["text"].startswith("step ") for name, _, kw in log)
+        deadline = time.monotonic() + 300
+        while engine_install._timer() is not None and time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        if not run.finished:
+            run.cancel()
+            run.wait(echo=False)
+    assert run.state == "error" and finished == [run] and run.finished_handled
+    assert not run.env.exists() and engine_install.installed_engines(str(tmp_path)) == []
+    log = []
+    engine_install.draw_preferences(prefs, _Layout(log))
+    labels = [(kw.get("text"), kw.get("icon")) for name, _, kw in log if name == "label"]
+    assert (run.message[:200], "ERROR") in labels and "could not reach" in run.message
+    ops = [args[0] for name, args, _ in log if name == "operator"]
+    assert ops == ["gsgs.install_engine"]  # nothing installed: no Uninstall
+    engine_install.CURRENT.clear()
