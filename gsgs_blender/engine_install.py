@@ -103,8 +103,8 @@ def installed_engines(folder: str = "") -> list[Path]:
 
 def is_ours(python: str, folder: str = "") -> bool:
     """True when `python` is the interpreter of an environment Install Engine made."""
-    try:
-        return Path(python).resolve().is_relative_to(engines_dir(folder).resolve())
+    try:  # the folder, not the file: a venv's bin/python is a link to its base Python
+        return Path(python).parent.resolve().is_relative_to(engines_dir(folder).resolve())
     except (OSError, ValueError):
         return False
 

@@ -9,7 +9,8 @@ Installs the extension zip as "Install from Disk" does, sets Engine Python to a 
    reached, else "index", torch as pip's configured index and find-links serve it), timed, its disk
    use measured,
 4. Check Engine, and photos -> cameras -> train (30 steps) -> import through the add-on's operators
-   with the engine it installed.
+   with the engine it installed,
+5. Reinstall Engine, then Uninstall Engine.
 Prints `RESULT <json>` last; the test asserts on it. Not collected by pytest (no test_ prefix).
 """
 
@@ -119,4 +120,15 @@ result["job_pythons"] = {name: next((ln.split()[3] for ln in text.splitlines() i
                          for name, text in logs.items()}
 metrics = Path(bpy.path.abspath(scene.gsgs.train_job)) / "result" / "metrics.json"
 result["metrics"] = json.loads(metrics.read_text()) if metrics.is_file() else None
+
+# 5. Reinstall (a second install replaces the first only once it works), then Uninstall
+first = run.env
+t0 = time.monotonic()
+assert bpy.ops.gsgs.install_engine() == {"FINISHED"}
+second = engine_install.current().env
+result["reinstall"] = {"seconds": round(time.monotonic() - t0, 1), "first_exists": first.exists(),
+                       "second": str(second), "python": prefs.python_path, "leftovers": leftovers()}
+assert bpy.ops.gsgs.uninstall_engine() == {"FINISHED"}
+result["uninstall"] = {"leftovers": leftovers(), "python": prefs.python_path, "root": prefs.engine_root,
+                       "second_exists": second.exists()}
 print("RESULT " + json.dumps(result, default=str))

@@ -335,3 +335,12 @@ def test_the_ui_timer_follows_an_install_to_its_end(tmp_path, monkeypatch):
     ops = [args[0] for name, args, _ in log if name == "operator"]
     assert ops == ["gsgs.install_engine"]  # nothing installed: no Uninstall
     engine_install.CURRENT.clear()
+
+
+@pytest.mark.slow
+def test_reinstall_replaces_the_engine_and_uninstall_removes_it(installed):
+    again, gone = installed["reinstall"], installed["uninstall"]
+    assert not again["first_exists"] and again["leftovers"] == [Path(again["second"]).name]
+    assert again["python"].startswith(again["second"])
+    assert gone["leftovers"] == [] and not gone["second_exists"]
+    assert gone["python"] == "python3" and gone["root"] == ""  # the defaults of an installed extension
