@@ -39,10 +39,11 @@ def unregister() -> None:
     global _registered
     import bpy
 
-    from . import job_runner, preferences, pseudo_paths, timeline
+    from . import engine_install, job_runner, preferences, pseudo_paths, timeline
 
     timeline.unregister_handler()
     job_runner.stop_timer()
+    engine_install.shutdown()
     pseudo_paths.unregister_drawing()
     for cls in reversed(_registered):
         bpy.utils.unregister_class(cls)

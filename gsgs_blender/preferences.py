@@ -17,9 +17,10 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
+from gsgs_engine import __version__ as ADDON_VERSION
 from gsgs_engine import presets
 
-from . import node_groups, splat_import
+from . import engine_install, node_groups, splat_import
 from .node_groups import DEFAULT_SIZE as DEFAULT_SPLAT_SIZE
 from .render_setup import COLOUR_ITEMS, DEFAULT_COLOUR_MODE
 
@@ -44,7 +45,7 @@ DEVICES = [("auto", "Auto", "CUDA when available, else CPU"),
            ("cuda", "CUDA", "an NVIDIA GPU; the job fails clearly when none is present")]
 
 
-class GSGS_AddonPreferences(bpy.types.AddonPreferences):
+class GSGS_AddonPreferences(engine_install.InstallPreferences, bpy.types.AddonPreferences):
     bl_idname = ADDON_ID
 
     python_path: StringProperty(
@@ -100,6 +101,11 @@ class GSGS_AddonPreferences(bpy.types.AddonPreferences):
         for line in self.engine_report.split("\n"):
             if line:
                 layout.label(text=line)
+        self.draw_install(layout)
+
+    def draw_install(self, layout) -> None:
+        """Install Engine / Reinstall / Uninstall, its settings and progress (engine_install)."""
+        engine_install.draw_preferences(self, layout)
 
 
 def draw_run_on(prefs, layout) -> None:
@@ -117,6 +123,8 @@ class _Defaults:
 
     python_path = default_python()
     engine_root = default_engine_root()
+    install_python = install_index_url = torch_index_url = ""
+    torch_build = "auto"
     jobs_dir = ""
     diffusion_dir = depth_adapter_dir = depth_estimator_dir = ""
     device = "auto"
@@ -198,7 +206,8 @@ def check_engine(python: str, engine_root: str = "", timeout: float = 120.0) -> 
         proc = subprocess.run([python, "-c", CHECK_SCRIPT], capture_output=True, text=True, timeout=timeout,
                               env=engine_env(engine_root or None), cwd=engine_root or None)
     except FileNotFoundError:
-        return False, f"{python}: no such interpreter; set Engine Python to a Python 3.11 with the engine installed"
+        return False, (f"{python}: no such interpreter; press Install Engine below, or set Engine Python to a "
+                       "Python 3.11 to 3.13 with the engine installed")
     except subprocess.TimeoutExpired:
         return False, f"{python}: no answer within {timeout:.0f} s"
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("GSGS_CHECK ")), None)
@@ -213,7 +222,20 @@ def check_engine(python: str, engine_root: str = "", timeout: float = 120.0) -> 
              + (f"  backends: {', '.join(info['backends'])}" if info.get("backends") else "")]
     if missing:
         lines.append("missing: " + ", ".join(missing) + (f" ({info['engine_error']})" if info.get("engine_error") else ""))
-    return not missing, "\n".join(lines)
+    mismatch = version_mismatch(info.get("gsgs_engine"), python, engine_root)
+    if mismatch:
+        lines.append(mismatch)
+    return not missing and not mismatch, "\n".join(lines)
+
+
+def version_mismatch(engine_version: str | None, python: str, engine_root: str = "") -> str:
+    """The engine in `python` must be the add-on's version (the job folder protocol is theirs together)."""
+    if not engine_version or engine_version == ADDON_VERSION:
+        return ""
+    where = f"Engine Source {engine_root}" if engine_root else python
+    fix = "update that checkout" if engine_root else "press Reinstall Engine below"
+    return (f"version mismatch: the engine in {where} is {engine_version}, this add-on is {ADDON_VERSION}; "
+            f"{fix} so they match")
 
 
 class GSGS_OT_check_engine(bpy.types.Operator):

@@ -8,12 +8,20 @@ Zip layout (what Blender expects of an add-on extension):
     blender_manifest.toml          the repository's manifest, unchanged
     __init__.py, *.py              gsgs_blender/ (the add-on package's modules at the zip root)
     wheels/gsgs_engine_core-<version>-py3-none-any.whl
+    engine/gsgs-<version>-py3-none-any.whl
 
 The add-on imports the engine's numpy-only layer (gsgs_engine/__init__, cameras, job and the
 io package). Blender installs the wheels a manifest lists into its extension site-packages, so
 that layer ships as a small pure-Python wheel built here with the standard library (no pip, no
 network, no torch metadata); nothing that needs torch, pycolmap or OpenCV at import time goes in.
-Zip entries have fixed timestamps, so the same sources give the same bytes.
+
+engine/ holds the whole engine as the wheel `pip wheel . --no-deps` makes of pyproject.toml (the
+`gsgs` distribution: gsgs_engine with its C++ kernel sources, the `gsgs` command; not the add-on).
+The manifest does not list it: Blender's Python never installs it. The add-on's Install Engine
+pip-installs it, with torch and the rest, into a separate environment (gsgs_blender/engine_install.py).
+It is also left in the output folder, so `pip install dist/gsgs-*.whl` works on its own.
+Zip entries have fixed timestamps (and SOURCE_DATE_EPOCH fixes the engine wheel's), so the same
+sources give the same bytes.
 """
 
 from __future__ import annotations
@@ -21,9 +29,14 @@ from __future__ import annotations
 import argparse
 import base64
 import hashlib
+import importlib.util
 import io
+import os
 import re
+import shutil
+import subprocess
 import sys
+import tempfile
 import tomllib
 import zipfile
 from pathlib import Path
@@ -94,6 +107,34 @@ def build_wheel(version: str) -> tuple[str, bytes]:
     return f"{WHEEL_DIST}-{version}-py3-none-any.whl", buf.getvalue()
 
 
+def build_engine_wheel(version: str, out_dir: Path) -> Path:
+    """`pip wheel . --no-deps` of the repository (setuptools from this Python) -> out_dir/gsgs-VERSION-*.whl."""
+    env = dict(os.environ, SOURCE_DATE_EPOCH="1704067200")  # 2024-01-01, as FIXED_TIME
+    # setuptools packs whatever build/lib holds: a module deleted from the sources must not come back from there
+    shutil.rmtree(REPO / "build" / "lib", ignore_errors=True)
+    with tempfile.TemporaryDirectory(prefix="gsgs_wheel_") as tmp:
+        # setuptools of this Python when it has one (no network); else pip fetches it into an isolated build
+        isolation = [] if importlib.util.find_spec("setuptools") is None else ["--no-build-isolation"]
+        proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", *isolation,
+                               "--wheel-dir", tmp, str(REPO)], capture_output=True, text=True, env=env,
+                              cwd=tmp)
+        built = sorted(Path(tmp).glob(f"gsgs-{version}-*.whl"))
+        if proc.returncode != 0 or not built:
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+            raise BuildError(f"pip wheel of the engine failed: {' | '.join(tail)}")
+        out_dir.mkdir(parents=True, exist_ok=True)
+        target = out_dir / built[0].name
+        target.write_bytes(built[0].read_bytes())
+    with zipfile.ZipFile(target) as zf:
+        names = zf.namelist()
+    missing = [f"gsgs_engine/render/csrc/{p.name}" for p in (REPO / "gsgs_engine/render/csrc").iterdir()
+               if p.suffix in (".cpp", ".h") and f"gsgs_engine/render/csrc/{p.name}" not in names]
+    if missing or any(n.startswith("gsgs_blender/") for n in names):
+        raise BuildError(f"{target.name}: kernel sources missing {missing} or the add-on inside; check "
+                         "pyproject.toml's packages and package-data")
+    return target
+
+
 def read_manifest() -> dict:
     path = REPO / "blender_manifest.toml"
     try:
@@ -109,6 +150,7 @@ def build(out_dir: Path) -> Path:
         raise BuildError(f"blender_manifest.toml version {manifest.get('version')!r} != gsgs_engine "
                          f"{version!r}; make them equal")
     wheel_name, wheel_bytes = build_wheel(version)
+    engine_wheel = build_engine_wheel(version, out_dir)
     wheel_path = f"wheels/{wheel_name}"
     if manifest.get("wheels") != [f"./{wheel_path}"]:
         raise BuildError(f"blender_manifest.toml wheels = {manifest.get('wheels')}; set it to [\"./{wheel_path}\"]")
@@ -122,6 +164,7 @@ def build(out_dir: Path) -> Path:
         for path in addon_files:
             zf.writestr(_entry(path.name), path.read_bytes())
         zf.writestr(_entry(wheel_path), wheel_bytes)
+        zf.writestr(_entry(f"engine/{engine_wheel.name}"), engine_wheel.read_bytes())
     return zip_path
 
 

@@ -273,7 +273,7 @@ def test_extension_zip_contents(tmp_path):
     path = _build(tmp_path)
     with zipfile.ZipFile(path) as zf:
         names = set(zf.namelist())
-        wheel_name = next(n for n in names if n.endswith(".whl"))
+        wheel_name = next(n for n in names if n.startswith("wheels/") and n.endswith(".whl"))  # not engine/
         wheel = zipfile.ZipFile(io.BytesIO(zf.read(wheel_name)))
     assert "blender_manifest.toml" in names and "__init__.py" in names
     assert {p.name for p in ADDON_DIR.glob("*.py")} <= names
