@@ -110,18 +110,14 @@ class RemoteCommand:
     module: str = "gsgs_engine"  # what the worker runs with `python -m` (worker.MODULES)
 
 
-def outgoing_state(local_out: Path, no_sync: tuple[str, ...] = ()) -> tuple[bytes, bool]:
-    """(archive, has_checkpoint) of what a resumed remote run needs from the local run folder: the
-    newest checkpoint, progress.jsonl and log.txt."""
+def outgoing_state(local_out: Path) -> tuple[bytes, bool]:
+    """(archive, has_checkpoint) of what a resumed remote run needs from the local run folder: its newest
+    checkpoint. (progress.jsonl and log.txt stay here: the worker's start empty and are appended to ours.)"""
     local_out = Path(local_out)
     replace: dict[str, bytes] = {}
     ckpts = sorted((local_out / "checkpoints").glob("ckpt_*.safetensors")) if (local_out / "checkpoints").is_dir() else []
     if ckpts:
-        newest = ckpts[-1]
-        replace[f"checkpoints/{newest.name}"] = newest.read_bytes()
-    for name in APPEND_FILES:
-        if (local_out / name).is_file() and name not in no_sync:
-            replace[name] = (local_out / name).read_bytes()
+        replace[f"checkpoints/{ckpts[-1].name}"] = ckpts[-1].read_bytes()
     return pack({}, replace), bool(ckpts)
 
 
@@ -131,9 +127,9 @@ class Mirror:
     def __init__(self, local_out: Path, remote_files: dict, address: str):
         self.local_out = Path(local_out)
         self.known = dict(remote_files)  # rel -> [size, mtime_ns] as the worker last sent them
-        self.offsets = {name: (self.local_out / name).stat().st_size if (self.local_out / name).is_file() else 0
-                        for name in APPEND_FILES}
-        self.offsets[CONSOLE] = 0
+        # how much of the worker's grow-only files has arrived; it is appended to ours (O_APPEND), never
+        # written over: the add-on appends the driver's own output to the same log.txt
+        self.offsets = {name: 0 for name in (*APPEND_FILES, CONSOLE)}
         self.address = address
 
     def cursor(self) -> bytes:
@@ -145,10 +141,10 @@ class Mirror:
             target = self.local_out / rel
             if rel in APPEND_FILES:
                 start = int(manifest.get("appended", {}).get(rel, 0))
+                if start != self.offsets[rel]:  # the worker's file shrank: cannot happen to a grow-only file
+                    raise GsgsError(f"the Ray worker's {rel} was rewritten; the local copy keeps what came before")
                 target.parent.mkdir(parents=True, exist_ok=True)
-                with open(target, "r+b" if target.exists() else "wb") as fh:
-                    fh.truncate(start)
-                    fh.seek(start)
+                with open(target, "ab") as fh:
                     fh.write(data)
                 self.offsets[rel] = start + len(data)
             elif rel == "status.json":
@@ -202,7 +198,7 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
     """Run `command` on the cluster at `address` and mirror it into `command.local_out`. Returns the engine's
     exit code. Ctrl-C / SIGTERM (KeyboardInterrupt) or `cancel_file` appearing cancels the remote run; a
     lost worker is replaced up to `retries` times, resuming from the newest checkpoint that came back.
-    `ship_state`: send the local folder's newest checkpoint and progress first (a resumed run)."""
+    `ship_state`: send the local folder's newest checkpoint first (a resumed run)."""
     echo = echo or (lambda text: print(text, end="", file=sys.stderr, flush=True))
     ray = connect(address)
     lost_errors = _lost_worker_errors(ray)
@@ -222,7 +218,7 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
             names = list(refs)
             blobs = [refs[n] for n in names]
             if ship_state:
-                state_blob, _ = outgoing_state(local_out, command.no_sync)
+                state_blob, _ = outgoing_state(local_out)
                 names.append(command.out)
                 blobs.append(state_blob)
             spec = json.dumps({"argv": argv, "out": command.out, "inputs": names, "env": command.env,
@@ -266,15 +262,12 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
                 raise GsgsError(f"the Ray worker running {command.label} was lost {attempt} times (last: "
                                 f"{type(exc).__name__}); the checkpoints that came back are in {local_out}; "
                                 "run the same command with --resume to continue") from None
-            _, has_ckpt = outgoing_state(local_out, command.no_sync)
+            _, has_ckpt = outgoing_state(local_out)
             ship_state = has_ckpt
             argv = command.resume_argv(has_ckpt) if command.resume_argv is not None else list(command.argv)
             echo(f"gsgs: lost the Ray worker ({type(exc).__name__}); starting again "
                  + ("from the last checkpoint that came back" if has_ckpt else "from the start (no checkpoint yet)")
                  + f", attempt {attempt + 1} of {retries + 1}\n")
-            if not has_ckpt:
-                for name in APPEND_FILES:
-                    (local_out / name).unlink(missing_ok=True)
 
 
 def _close(ray, actor) -> None:
