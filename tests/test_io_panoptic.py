@@ -245,3 +245,36 @@ def test_real_cameras_agree_on_the_ball():
                                                   [v.camera.height - 1, v.camera.width - 1]))])
                   for v in scene.train)
     assert on_mask >= 25  # of 27
+
+
+# -- `gsgs train` on it: one frame trains the static model, all frames the 4D one ----------------------
+def _train(tiny, out, *extra):
+    from gsgs_engine.cli import main
+
+    assert main(["train", str(tiny), "--out", str(out), "--iters", "8", "--init", "random", "--init-points", "200",
+                 "--sh-degree", "0", "--checkpoint-every", "0", *extra]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["plan"]["format"] == "panoptic" and np.isfinite(metrics["psnr"])
+    return metrics
+
+
+@pytest.mark.slow
+def test_train_one_frame_static_then_eval(tiny, tmp_path):
+    from gsgs_engine.cli import main
+
+    metrics = _train(tiny, tmp_path / "one", "--train-views", "3", "--frames", "1")
+    plan = metrics["plan"]
+    assert plan["effects"]["time"]["enabled"] is False and plan["frames"] == "1"
+    assert plan["num_train_views"] == 3 and plan["num_test_views"] == 2
+    assert sorted(v["name"] for v in metrics["per_view"]) == ["0/000001", "8/000001"]
+    # eval reads the frames the run recorded and reproduces its test PSNR
+    assert main(["eval", str(tmp_path / "one"), "--data", str(tiny)]) == 0
+    assert json.loads((tmp_path / "one" / "eval.json").read_text())["psnr"] == pytest.approx(metrics["psnr"], abs=1e-4)
+
+
+@pytest.mark.slow
+def test_train_all_frames_is_4d(tiny, tmp_path):
+    metrics = _train(tiny, tmp_path / "all", "--train-views", "3")
+    plan = metrics["plan"]
+    assert plan["effects"]["time"]["enabled"] is True and plan["effects"]["time"]["measured"]["distinct_times"] == 3
+    assert plan["num_train_views"] == 9 and plan["num_test_views"] == 6
