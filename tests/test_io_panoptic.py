@@ -113,6 +113,18 @@ def test_time_over_frames_loaded(tiny):
     assert parse_frames("0-2,5") == [0, 1, 2, 5] and parse_frames(3) == [3] and parse_frames([2, 0]) == [0, 2]
 
 
+def test_frames_of_other_scenes_with_time(tmp_path):
+    from tests.test_dynamic_io import write_nerf_with_time
+
+    root = write_nerf_with_time(tmp_path / "nerf_t", n_cams=4, n_frames=4)
+    scene = load_scene(root, train_views=2, frames="1-2")
+    assert sorted({(v.camera.extra["frame"], v.time) for v in scene.views}) == [(1, 0.0), (2, 1.0)]
+    assert len(scene.test) == 2 and len(scene.train) == 2 * 2 and len(scene.split("all_train")) == 3 * 2
+    assert all(scene.views[i].camera.extra["camera_index"] == 0 for i in scene.splits["test"])
+    with pytest.raises(GsgsError, match=r"frame 7 does not exist; frames are 0\.\.3"):
+        load_scene(root, frames="7")
+
+
 def test_masks_where_present(tiny):
     scene = load_scene(tiny)
     mask = load_mask(scene.train[0])
