@@ -256,7 +256,7 @@ def test_real_cameras_agree_on_the_ball():
     on_mask = sum(bool(load_mask(v)[tuple(np.clip(v.camera.project(ball[None])[0][0][::-1].astype(int), 0,
                                                   [v.camera.height - 1, v.camera.width - 1]))])
                   for v in scene.train)
-    assert on_mask >= 25  # of 27
+    assert on_mask >= 25  # of 27 (measured: 27)
 
 
 # -- `gsgs train` on it: one frame trains the static model, all frames the 4D one ----------------------
