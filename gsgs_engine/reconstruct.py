@@ -180,11 +180,12 @@ def run_train_job(job) -> None:
     background = tuple(settings.get("background", data.get("background", (1.0, 1.0, 1.0))))
     scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
                        train_views=data.get("train_views"), train_ids=data.get("train_ids"),
-                       resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background)
+                       resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background,
+                       frames=data.get("frames"))
     resume = ckpt.latest_checkpoint(job.checkpoint_dir) is not None
     plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
-            "train_split": data.get("train_split"), "resolution_scale": float(settings.get("resolution_scale", 1.0)),
-            "job": str(job.root)}
+            "train_split": data.get("train_split"), "frames": data.get("frames"),
+            "resolution_scale": float(settings.get("resolution_scale", 1.0)), "job": str(job.root)}
     from gsgs_engine.effect_plan import overrides_from_settings
     from gsgs_engine.io.world_scale import camera_dicts_to_internal
     from gsgs_engine.priors.config import prior_config_from_settings

@@ -108,11 +108,12 @@ SFM = {
     "single_camera": Rule("bool"),
 }
 DATA = {
-    "format": Rule("choice", choices=("auto", "blender", "llff", "colmap", "photos", "job")),
+    "format": Rule("choice", choices=("auto", "blender", "llff", "colmap", "photos", "job", "n3dv", "panoptic")),
     "train_split": Rule("str", allow_none=True),
     "train_views": Rule("int", 1, 100_000, allow_none=True),
     "resolution_scale": Rule("float", 0, 4, lo_open=True, allow_none=True),
     "background": Rule("background"),
+    "frames": Rule("str", allow_none=True),  # frame ids of a scene with time: "0", "0-9", "0,5,9"
 }
 
 

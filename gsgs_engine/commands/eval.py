@@ -17,7 +17,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("result", help="folder with point_cloud.ply (a `gsgs train` output or a job's result/), "
                                        "or the PLY itself")
     parser.add_argument("--data", required=True, help="scene folder whose test views to evaluate on")
-    parser.add_argument("--format", default="auto", choices=["auto", "blender", "llff", "colmap", "photos", "job"])
+    from gsgs_engine.io.loader import FORMATS
+
+    parser.add_argument("--format", default="auto", choices=list(FORMATS))
+    parser.add_argument("--frames", default=None, metavar="IDS",
+                        help="scenes with time: the frame ids the result was trained on (default: the ones "
+                             "recorded in metrics.json, else all)")
     parser.add_argument("--split", default="test", help="split to evaluate (default test)")
     parser.add_argument("--backend", default="auto", choices=["auto", "cpu", "reference", "cuda"])
     parser.add_argument("--resolution-scale", type=float, default=None,
@@ -66,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         background = (1.0, 1.0, 1.0) if args.background == "white" else (0.0, 0.0, 0.0)
     else:
         background = tuple(recorded.get("background", (1.0, 1.0, 1.0)))
-    scene = load_scene(args.data, format=args.format, resolution_scale=scale, background=background)
+    frames = args.frames if args.frames is not None else recorded.get("frames")
+    scene = load_scene(args.data, format=args.format, resolution_scale=scale, background=background, frames=frames)
     views = scene.split(args.split)
     if not views:
         raise GsgsError(f"{args.data}: split {args.split!r} has no views to evaluate")

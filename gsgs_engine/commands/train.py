@@ -18,11 +18,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("data", help="scene folder (NeRF-synthetic, LLFF, COLMAP, photos after sfm, or a job folder)")
     parser.add_argument("--out", required=True, help="output folder (results, progress.jsonl, checkpoints/)")
-    parser.add_argument("--format", default="auto", choices=["auto", "blender", "llff", "colmap", "photos", "job"])
+    from gsgs_engine.io.loader import FORMATS
+
+    parser.add_argument("--format", default="auto", choices=list(FORMATS))
     parser.add_argument("--train-split", default=None, help="split to train on (e.g. 'dense' for lego_200)")
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--train-views", type=int, default=None, help="train on N views spread over the train split")
     group.add_argument("--train-ids", default=None, help="comma-separated view ids/names to train on")
+    parser.add_argument("--frames", default=None, metavar="IDS",
+                        help="scenes with time (multi-view video): frame ids to train and test on, e.g. 0 (one "
+                             "frame: a static model), 0-9 or 0,5,9; times are renormalised over them (default: all)")
     parser.add_argument("--iters", type=int, default=DEFAULT_ITERS, help=f"optimisation steps (default {DEFAULT_ITERS})")
     parser.add_argument("--backend", default="auto", choices=["auto", "cpu", "reference", "cuda"])
     parser.add_argument("--prior", default="none",
@@ -136,9 +141,9 @@ def run(args: argparse.Namespace) -> int:
         train_ids = [s.strip() for s in args.train_ids.split(",") if s.strip()] if args.train_ids else None
         scene = load_scene(args.data, format=args.format, train_split=args.train_split,
                            train_views=args.train_views, train_ids=train_ids,
-                           resolution_scale=args.resolution_scale, background=background)
+                           resolution_scale=args.resolution_scale, background=background, frames=args.frames)
         plan = {"data": args.data_label or str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
-                "resolution_scale": args.resolution_scale, "prior": args.prior, "preset": args.preset,
+                "frames": args.frames, "resolution_scale": args.resolution_scale, "prior": args.prior, "preset": args.preset,
                 "preset_changed": preset_changed}
         overrides = overrides_from_args(args)
         if args.random_background:

@@ -134,6 +134,47 @@ def frame_times(frame_ids: list[int], total: int) -> list[float]:
     return [0.0 if total <= 1 else f / (total - 1) for f in frame_ids]
 
 
+def normalised_times(frame_ids: list[int]) -> list[float]:
+    """Times over the frames loaded: the first 0, the last 1 (a single frame: 0)."""
+    lo, hi = min(frame_ids), max(frame_ids)
+    return [0.0 if hi == lo else (f - lo) / (hi - lo) for f in frame_ids]
+
+
+def parse_frames(spec) -> list[int] | None:
+    """Frame ids from "0", "0-9", "0,5,9" or "0-4,10" (or an int / a list of ints); None keeps every frame."""
+    if spec is None:
+        return None
+    if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
+        spec = str(int(spec))
+    if isinstance(spec, list) and all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in spec):
+        spec = ",".join(str(int(x)) for x in spec)
+    out: list[int] = []
+    for part in (str(spec).split(",") if isinstance(spec, str) else [None]):
+        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part or "")
+        if not m or (m.group(2) is not None and int(m.group(2)) < int(m.group(1))):
+            raise GsgsError(f"frames {spec!r}: expected frame ids such as 0, 0-9 or 0,5,9 (ranges ascending)")
+        lo = int(m.group(1))
+        out.extend(range(lo, int(m.group(2) or lo) + 1))
+    return sorted(set(out))
+
+
+def select_frames(scene: Scene, frames: list[int]) -> Scene:
+    """Keep the views of these frames (Camera.extra["frame"]); times renormalised over the frames kept."""
+    present = sorted({int(v.camera.extra["frame"]) for v in scene.views})
+    missing = [f for f in frames if f not in present]
+    if missing:
+        raise GsgsError(f"{scene.source}: frame {missing[0]} does not exist; frames are "
+                        f"{present[0]}..{present[-1]} ({len(present)} frames)")
+    keep = [i for i, v in enumerate(scene.views) if int(v.camera.extra["frame"]) in set(frames)]
+    time_of = dict(zip(sorted(frames), normalised_times(sorted(frames))))
+    remap = {old: new for new, old in enumerate(keep)}
+    scene.views = [replace(scene.views[i], camera=replace(scene.views[i].camera,
+                                                          time=time_of[int(scene.views[i].camera.extra["frame"])]))
+                   for i in keep]
+    scene.splits = {k: [remap[i] for i in v if i in remap] for k, v in scene.splits.items()}
+    return scene
+
+
 def pick_frames(total: int, max_frames: int | None, source: str) -> list[int]:
     if total < 1:
         raise GsgsError(f"{source}: no frames")

@@ -2,7 +2,7 @@
 
     "data": {"source": "/path/to/scene", "format": "auto", "train_split": null,
              "train_ids": [0, 5, 9], "train_views": null, "resolution_scale": 1.0,
-             "background": [1, 1, 1]}
+             "background": [1, 1, 1], "frames": "0-9"}
 or
     "data": {"cameras": [{<Camera.to_dict()>, "image": "images/a.png", "split": "train"}, ...],
              "background": [1, 1, 1], "near": 0.1, "far": 100.0, "points": "points.ply"}
@@ -35,7 +35,7 @@ class SceneSource:
 
 
 def load_job_scene(path, train_split=None, train_views=None, train_ids=None, resolution_scale=None,
-                   background=None) -> Scene | SceneSource:
+                   background=None, frames=None) -> Scene | SceneSource:
     """The job's inline scene, or the scene folder it names (a SceneSource, which load_scene loads)."""
     path = Path(path)
     job = Job.open(path.parent if path.name == "job.json" else path)
@@ -46,11 +46,15 @@ def load_job_scene(path, train_split=None, train_views=None, train_ids=None, res
     pick = lambda arg, key: data.get(key) if arg is None else arg  # noqa: E731
     train_split, train_views, train_ids = pick(train_split, "train_split"), pick(train_views, "train_views"), \
         pick(train_ids, "train_ids")
+    frames = pick(frames, "frames")
     scale = float(pick(resolution_scale, "resolution_scale") or 1.0)
     bg_value = pick(background, "background")
     bg = check_background((1.0, 1.0, 1.0) if bg_value is None else bg_value)
     source = data.get("source", data.get("path"))
     if "cameras" in data:
+        if frames is not None:
+            raise GsgsError(f"{where}: \"frames\" picks frames of a scene folder with time; an inline camera list "
+                            "has no frames to pick, remove it")
         scene = _inline_scene(job, data, scale, bg)
         return select_train(scene, train_split=train_split, train_ids=train_ids, train_views=train_views)
     if not source:
@@ -60,7 +64,7 @@ def load_job_scene(path, train_split=None, train_views=None, train_ids=None, res
         raise GsgsError(f"{where}.source points at the job folder itself; name the scene folder instead")
     return SceneSource(scene_path, {"format": data.get("format", "auto"), "train_split": train_split,
                                     "train_views": train_views, "train_ids": train_ids, "resolution_scale": scale,
-                                    "background": bg})
+                                    "background": bg, "frames": frames})
 
 
 def _resolve(root: Path, p) -> Path:

@@ -11,11 +11,11 @@ from gsgs_engine import GsgsError
 from gsgs_engine.io.scene import Scene
 from gsgs_engine.io.selection import check_background, select_train
 
-FORMATS = ("auto", "blender", "llff", "colmap", "photos", "job", "n3dv")
+FORMATS = ("auto", "blender", "llff", "colmap", "photos", "job", "n3dv", "panoptic")
 
 
 def detect_format(path) -> str:
-    """The format of a scene path: job, blender, llff, colmap or photos (first match in that order)."""
+    """The format of a scene path: job, panoptic, n3dv, blender, llff, colmap or photos (first match in that order)."""
     from gsgs_engine.io.colmap_model import find_model
     from gsgs_engine.io.nerf_synthetic import transforms_files
     from gsgs_engine.io.photos import photo_folder
@@ -36,7 +36,10 @@ def detect_format(path) -> str:
     if (path / "job.json").is_file():
         return "job"
     from gsgs_engine.io.dynamic import is_n3dv
+    from gsgs_engine.io.panoptic import is_panoptic
 
+    if is_panoptic(path):
+        return "panoptic"
     if is_n3dv(path):
         return "n3dv"
     if transforms_files(path):
@@ -47,13 +50,13 @@ def detect_format(path) -> str:
         return "colmap"
     if photo_folder(path) is not None:
         return "photos"
-    raise GsgsError(f"{path}: unknown scene format; looked for job.json, transforms_*.json / transforms.json, "
+    raise GsgsError(f"{path}: unknown scene format; looked for job.json, train_meta.json + ims/, transforms_*.json / transforms.json, "
                     "poses_bounds.npy, sparse/0/cameras.bin|txt and photos (.png/.jpg here or in images/)")
 
 
 def load_scene(path, format: str = "auto", train_split: str | None = None, train_views: int | None = None,
                train_ids: list | None = None, resolution_scale: float | None = None,
-               background=None) -> Scene:
+               background=None, frames=None) -> Scene:
     """Load a scene; images stay on disk until a View asks for them.
 
     A scene much smaller or larger than usual comes back in rescaled units (scene.world_scale,
@@ -65,16 +68,21 @@ def load_scene(path, format: str = "auto", train_split: str | None = None, train
       (strings; a digit string that names no view is a position, as typed on a command line).
     train_views: N views spread evenly over the pool: round(linspace(0, len(pool) - 1, N)) (FSGS/DNGaussian).
     The full pool stays available as split "all_train"; "test" is never changed.
+    frames (scenes with time): frame ids to keep ("0", "0-9", "0,5,9" or a list; io/dynamic.parse_frames),
+      times renormalised over them; one frame trains a static model. Default: every frame.
     resolution_scale (default 1.0) resizes images and intrinsics; background (default white) is
     what RGBA images are composited on. For a job folder, unset arguments come from job.json.
     """
     from gsgs_engine.io.world_scale import normalise_scene
 
     return normalise_scene(_load_scene(path, format, train_split, train_views, train_ids, resolution_scale,
-                                       background))
+                                       background, frames))
 
 
-def _load_scene(path, format, train_split, train_views, train_ids, resolution_scale, background) -> Scene:
+def _load_scene(path, format, train_split, train_views, train_ids, resolution_scale, background, frames) -> Scene:
+    from gsgs_engine.io.dynamic import parse_frames
+
+    frames = parse_frames(frames)
     if format not in FORMATS:
         raise GsgsError(f"unknown scene format {format!r}; expected one of {', '.join(FORMATS)}")
     if resolution_scale is not None and not (math.isfinite(resolution_scale) and resolution_scale > 0):
@@ -86,7 +94,7 @@ def _load_scene(path, format, train_split, train_views, train_ids, resolution_sc
         from gsgs_engine.io.job_scene import SceneSource, load_job_scene
 
         scene = load_job_scene(path, train_split=train_split, train_views=train_views, train_ids=train_ids,
-                               resolution_scale=resolution_scale, background=background)
+                               resolution_scale=resolution_scale, background=background, frames=frames)
         if isinstance(scene, SceneSource):  # the job names a scene folder: load that one
             return load_scene(scene.path, **scene.arguments)
         return scene
@@ -94,6 +102,13 @@ def _load_scene(path, format, train_split, train_views, train_ids, resolution_sc
     bg = (1.0, 1.0, 1.0) if background is None else background
     from gsgs_engine.io.dynamic import has_time
 
+    if fmt == "panoptic":
+        from gsgs_engine.io.panoptic import load_panoptic
+
+        if train_ids is not None or train_split is not None:
+            raise GsgsError(f"{path}: a Panoptic scene picks training cameras with --train-views N (test cameras "
+                            "come from test_meta.json); --train-ids / --train-split do not apply")
+        return load_panoptic(path, train_cameras=train_views, frames=frames, resolution_scale=scale, background=bg)
     if fmt == "n3dv" or (fmt == "blender" and has_time(path)):
         # Multi-view video: the protocol picks training *cameras* (train_views), camera 0 is the test camera.
         from gsgs_engine.io.dynamic import load_dynamic_scene
@@ -101,8 +116,16 @@ def _load_scene(path, format, train_split, train_views, train_ids, resolution_sc
         if train_ids is not None or train_split is not None:
             raise GsgsError(f"{path}: a scene with time picks training cameras with --train-views N "
                             "(camera 0 is held out); --train-ids / --train-split do not apply")
-        return load_dynamic_scene(path, format=fmt, train_cameras=train_views, resolution_scale=scale,
-                                  background=bg)
+        scene = load_dynamic_scene(path, format=fmt, train_cameras=train_views, resolution_scale=scale,
+                                   background=bg)
+        if frames is not None:
+            from gsgs_engine.io.dynamic import select_frames
+
+            scene = select_frames(scene, frames)
+        return scene
+    if frames is not None:
+        raise GsgsError(f"{path}: frames picks frames of a scene with time (multi-view video); this {fmt} scene "
+                        "has none, leave --frames unset")
     if fmt == "blender":
         from gsgs_engine.io.nerf_synthetic import load_nerf_synthetic
 
