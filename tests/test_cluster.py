@@ -194,6 +194,7 @@ def test_train_on_the_cluster_equals_the_local_run(ray_cluster, tmp_path):
     remote = gsgs("train", *common, "--ray", ray_cluster["address"], "--out", tmp_path / "remote")
     assert remote.returncode == 0, remote.stderr[-3000:]
     assert "node 127.0.0.1" in remote.stderr  # the worker ran on a loopback node
+    assert f"results in {tmp_path / 'remote'}" in remote.stderr  # the engine's message names the local folder
     assert (tmp_path / "local" / "point_cloud.ply").read_bytes() == (tmp_path / "remote" / "point_cloud.ply").read_bytes()
     a = json.loads((tmp_path / "local" / "metrics.json").read_text())
     b = json.loads((tmp_path / "remote" / "metrics.json").read_text())

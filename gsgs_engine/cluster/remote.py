@@ -229,6 +229,8 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
             echo(f"gsgs: running on the Ray cluster at {address}: node {hello.get('node_ip')} ({hello.get('host')}), "
                  f"worker pid {hello.get('pid')}, engine pid {started.get('pid')}, attempt {attempt + 1}\n")
             mirror = Mirror(local_out, started.get("files", {}), address)
+            # the engine's messages name its folder on the worker; show the local one it is mirrored into
+            remote_out = f"{hello.get('work', '')}/{command.out}" if hello.get("work") else None
             while True:
                 try:
                     if cancelled_at is None and cancel_file is not None and Path(cancel_file).exists():
@@ -238,7 +240,7 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
                     manifest, files = _answer(ray, actor.poll.remote(mirror.cursor()), "progress", timeout=300)
                     text = mirror.apply(manifest, files)
                     if text:
-                        echo(text)
+                        echo(text.replace(remote_out, str(local_out)) if remote_out else text)
                     if not manifest.get("running"):
                         rc = manifest.get("returncode")
                         _close(ray, actor)
