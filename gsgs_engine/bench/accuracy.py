@@ -153,7 +153,7 @@ def run_cell_on_cluster(data: str, cell: dict, cell_dir: Path, train_views: int 
     peak memory the worker process's own."""
     from gsgs_engine import GsgsError
     from gsgs_engine.cluster.remote import RemoteCommand, folder_archive, run_remote
-    from gsgs_engine.cluster.submit import thread_env
+    from gsgs_engine.cluster.submit import echo_to, thread_env
 
     cell_dir.mkdir(parents=True, exist_ok=True)
     (cell_dir / "cell.json").unlink(missing_ok=True)
@@ -170,8 +170,8 @@ def run_cell_on_cluster(data: str, cell: dict, cell_dir: Path, train_views: int 
         if timer:
             timer.start()
         try:
-            code = run_remote(cluster.address, command, echo=lambda text: (log.write(text), log.flush()),
-                              retries=cluster.retries, cancel_file=cell_dir / "cancel.request")
+            code = run_remote(cluster.address, command, echo=echo_to(log), retries=cluster.retries,
+                              cancel_file=cell_dir / "cancel.request")
             error = None
         except GsgsError as exc:
             code, error = 1, str(exc)

@@ -206,7 +206,7 @@ def run_cell(folder: Path, data: dict, settings: dict, timeout_s: float | None =
 
 def _run_cell_on_cluster(folder: Path, ray, timeout_s: float | None) -> tuple[dict | None, str]:
     from gsgs_engine import GsgsError
-    from gsgs_engine.cluster.submit import job_on_cluster
+    from gsgs_engine.cluster.submit import echo_to, job_on_cluster
 
     for stale in (folder / "cancel.request", folder / "status.json"):
         stale.unlink(missing_ok=True)
@@ -216,8 +216,7 @@ def _run_cell_on_cluster(folder: Path, ray, timeout_s: float | None) -> tuple[di
         timer.start()
     with open(folder / "bench_log.txt", "a") as log:
         try:
-            code = job_on_cluster(folder, ray.address, ray.cpus, ray.gpus, ray.retries,
-                                  echo=lambda text: (log.write(text), log.flush()))
+            code = job_on_cluster(folder, ray.address, ray.cpus, ray.gpus, ray.retries, echo=echo_to(log))
         except GsgsError as exc:
             return None, str(exc)
         finally:

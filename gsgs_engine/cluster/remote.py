@@ -209,8 +209,7 @@ def run_remote(address: str, command: RemoteCommand, echo: Callable[[str], None]
     attempt = 0
     argv = list(command.argv)
     while True:
-        actor = engine_run.options(num_cpus=command.num_cpus, num_gpus=command.num_gpus,
-                                   name=None).remote()
+        actor = engine_run.options(num_cpus=command.num_cpus, num_gpus=command.num_gpus).remote()
         cancelled_at: float | None = None
         try:
             hello, _ = _answer(ray, actor.hello.remote(), "start-up")

@@ -103,7 +103,7 @@ def remote_train_argv(argv: list[str], parser: argparse.ArgumentParser, data_lab
 def train_on_cluster(args: argparse.Namespace, argv: list[str], out: Path, resume_command: str) -> int:
     """`gsgs train ... --ray ADDRESS`: the run folder `out` was claimed here; the worker trains.
     `resume_command`: how to continue from here (the worker's message names its own folders)."""
-    from gsgs_engine.cluster.remote import RemoteCommand, folder_archive, outgoing_state, run_remote
+    from gsgs_engine.cluster.remote import RemoteCommand, folder_archive, outgoing_state
     from gsgs_engine.job import Job
 
     data = Path(args.data)
@@ -249,5 +249,6 @@ def localise_paths(cameras_json: Path, remote_work: str, folders: dict[str, Path
 
 
 def echo_to(stream=None):
+    """An `echo` for run_remote that writes the engine's console output to `stream` (default stderr)."""
     stream = stream or sys.stderr
     return lambda text: (stream.write(text), stream.flush())

@@ -21,7 +21,6 @@ import subprocess
 import sys
 import tarfile
 import tempfile
-import time
 import traceback
 from pathlib import Path
 
@@ -166,7 +165,6 @@ class EngineRun:
         self.out: Path | None = None
         self.no_sync: tuple[str, ...] = ()
         self.console_path = self.work / "console.txt"
-        self.started = 0.0
 
     def hello(self) -> bytes:
         """Who and where: host, pid, Python, the engine version installed on this worker."""
@@ -215,7 +213,6 @@ class EngineRun:
                 self.proc = subprocess.Popen([sys.executable, "-m", module, *argv], cwd=self.work,
                                              stdout=console, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                              env=env, preexec_fn=_die_with_parent if os.name == "posix" else None)
-            self.started = time.time()
             return pack({"pid": self.proc.pid, "files": folder_files(self.out, self.no_sync)}, {})
         except BaseException as exc:
             return _error(exc)
