@@ -50,7 +50,7 @@ def _image_size(path: str) -> tuple[int, int] | None:
 def job_settings(context) -> dict:
     """job.json settings from the Train fields; a chosen preset is recorded and fills what has no field."""
     s = context.scene.gsgs
-    settings = {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale),
+    settings = {"iters": int(s.iterations), "resolution_scale": float(s.resolution_scale), "max_side": int(s.max_side),
                 **prior_settings(get_prefs(context), s.generator, s.rounds)}
     if s.preset != "custom":
         settings["preset"] = s.preset

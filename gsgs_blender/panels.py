@@ -133,6 +133,7 @@ class GSGS_PT_train(_GsgsPanel, bpy.types.Panel):
         col.prop(s, "iterations")
         col.prop(s, "rounds")
         col.prop(s, "resolution_scale")
+        col.prop(s, "max_side")
         col.prop(s, "generator")
         poses = len(pseudo_paths.poses_from_json(s.pseudo_poses))
         if poses and s.generator == "none":

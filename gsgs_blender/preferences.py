@@ -281,7 +281,8 @@ def _preset_cost(name: str) -> str:
 
 def _preset_item(name: str) -> tuple[str, str, str]:
     p = presets.PRESETS[name]
-    text = (f"{p['iters']} iterations, resolution {p['resolution_scale']}, prior {p['prior']}, "
+    cap = f"at most {p['max_side']} px" if p["max_side"] else "no size cap"
+    text = (f"{p['iters']} iterations, resolution {p['resolution_scale']} ({cap}), prior {p['prior']}, "
             f"{p['pseudo_views']} pseudo views, {p['rounds']} rounds, SH {p['sh_degree']}, backend {p['backend']}. "
             f"Measured: {_preset_cost(name)}")
     return (name, name.title(), text)
@@ -293,8 +294,8 @@ PRESETS = [("custom", "Custom", "Keep the training fields below as you set them"
 DEFAULT_PRESET = "balanced"  # the engine's own default schedule (gsgs train without flags)
 _DEFAULTS = presets.PRESETS[DEFAULT_PRESET]
 # panel field -> preset key; pseudo views, SH degree and backend have no field: the job's "preset" sets them
-PRESET_FIELDS = {"iterations": "iters", "resolution_scale": "resolution_scale", "generator": "prior",
-                 "rounds": "rounds"}
+PRESET_FIELDS = {"iterations": "iters", "resolution_scale": "resolution_scale", "max_side": "max_side",
+                 "generator": "prior", "rounds": "rounds"}
 _applying_preset = False
 
 
@@ -377,6 +378,11 @@ class GSGS_SceneSettings(bpy.types.PropertyGroup):
                                     subtype="FACTOR",
                                     update=_training_field_edited,
                                     description="Train on images downscaled by this factor")
+    max_side: IntProperty(name="Max Size", default=_DEFAULTS["max_side"], min=0, max=16384, subtype="PIXEL",
+                          update=_training_field_edited,
+                          description="Train on views at most this many pixels on their longer side, after "
+                                      "Resolution (0: no cap). The preset's cap keeps large photos to minutes "
+                                      "on a CPU; the splats render at any size")
     generator: EnumProperty(name="Generator", items=GENERATORS, default=_DEFAULTS["prior"],
                             update=_training_field_edited)
     train_job: StringProperty(name="Train Job", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},

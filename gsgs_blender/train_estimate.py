@@ -26,9 +26,21 @@ MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 
 
-def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str) -> float:
+def train_size(width: int, height: int, resolution_scale: float, max_side: int = 0) -> tuple[int, int]:
+    """The size views of width x height train at: scaled by resolution_scale, then the longer side capped
+    at max_side (0: no cap), as gsgs_engine.io.loader.load_scene does."""
+    scale = resolution_scale
+    longest = max(width, height) * scale
+    if max_side and longest > max_side:
+        scale *= max_side / longest
+    return round(width * scale), round(height * scale)
+
+
+def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str,
+                     max_side: int = 0) -> float:
     """Rough CPU seconds of a training run of `iterations` steps on views of width x height."""
-    pixels = max(1.0, width * height * resolution_scale * resolution_scale)
+    w, h = train_size(width, height, resolution_scale, max_side)
+    pixels = max(1.0, w * h)
     per_step = REFERENCE_SECONDS / REFERENCE_ITERS * max(pixels / REFERENCE_PIXELS, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT
     factor = PRIOR_FACTOR if generator not in ("none", "depth") else 1.0
     return iterations * per_step * factor
@@ -55,6 +67,6 @@ def estimate_text(scene) -> str:
     width = max(w for w, _ in sizes)
     height = max(h for _, h in sizes)
     s = scene.gsgs
-    seconds = estimate_seconds(s.iterations, width, height, s.resolution_scale, s.generator)
-    return (f"~{format_duration(seconds)} on a 2-core CPU ({s.iterations} steps on "
-            f"{round(width * s.resolution_scale)}x{round(height * s.resolution_scale)} px; a GPU is far faster)")
+    seconds = estimate_seconds(s.iterations, width, height, s.resolution_scale, s.generator, s.max_side)
+    w, h = train_size(width, height, s.resolution_scale, s.max_side)
+    return f"~{format_duration(seconds)} on a 2-core CPU ({s.iterations} steps on {w}x{h} px; a GPU is far faster)"

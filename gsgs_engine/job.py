@@ -191,7 +191,7 @@ def settings_with_preset(settings: dict) -> dict:
     """job.json settings with settings["preset"] (fast | balanced | best) filled in.
 
     Keys the job sets explicitly win, as typed flags do for `gsgs train --preset`; the others
-    take the preset's value (gsgs_engine.presets.PRESETS): iters, resolution_scale, backend,
+    take the preset's value (gsgs_engine.presets.PRESETS): iters, resolution_scale, max_side, backend,
     sh_degree (unless "auto"), prior, and prior_settings num_pseudo / rounds. The result reads
     into the same TrainConfig / PriorConfig as presets.apply_preset gives. Idempotent; a copy.
     """
@@ -203,7 +203,7 @@ def settings_with_preset(settings: dict) -> dict:
     from gsgs_engine.presets import preset  # standard library only, like this module
 
     p = preset(name)
-    for key in ("iters", "resolution_scale", "backend", "prior"):
+    for key in ("iters", "resolution_scale", "max_side", "backend", "prior"):
         out.setdefault(key, p[key])
     if p["sh_degree"] != "auto":
         out.setdefault("sh_degree", int(p["sh_degree"]))

@@ -50,6 +50,22 @@ def psnr(img, gt) -> torch.Tensor:
     return (-10.0 * torch.log10(mse)).mean()
 
 
+def masked_psnr(img, gt, mask) -> float | None:
+    """PSNR in dB (peak 1) over the pixels where `mask` (H x W, bool) is set; None when it sets none.
+
+    The mean squared error is taken over the masked pixels' channels only, so a small region is
+    scored on its own and not diluted by the rest of the image."""
+    x, y = _as_bchw(img, gt)
+    m = torch.as_tensor(mask, dtype=torch.bool, device=x.device)
+    if m.shape != x.shape[-2:]:
+        raise ValueError(f"mask is {tuple(m.shape)} but the image is {tuple(x.shape[-2:])}")
+    count = int(m.sum())
+    if count == 0:
+        return None
+    mse = ((x - y) ** 2)[..., m].mean()
+    return float(-10.0 * torch.log10(mse))
+
+
 def _gaussian_window_1d(size: int, sigma: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     x = torch.arange(size, dtype=torch.float64) - size // 2
     g = torch.exp(-(x**2) / (2.0 * sigma**2))

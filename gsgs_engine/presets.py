@@ -34,21 +34,21 @@ from gsgs_engine import GsgsError
 
 PRESETS: dict[str, dict] = {
     # plain 3DGS, short schedule: the first look (SH from the plan: its SfM is needed for init anyway)
-    "fast": {"iters": 300, "resolution_scale": 1.0, "prior": "none", "pseudo_views": 0, "rounds": 0,
+    "fast": {"iters": 300, "resolution_scale": 1.0, "max_side": 640, "prior": "none", "pseudo_views": 0, "rounds": 0,
              "sh_degree": "auto", "backend": "auto"},
     # the default schedule: the knee of both measured fronts, with the weights-free sparse-view recipe of
     # --prior auto (the effect plan turns its parts on only where the views are sparse; issue 14)
-    "balanced": {"iters": 1000, "resolution_scale": 1.0, "prior": "auto", "pseudo_views": 16, "rounds": 3,
+    "balanced": {"iters": 1000, "resolution_scale": 1.0, "max_side": 640, "prior": "auto", "pseudo_views": 16, "rounds": 3,
                  "sh_degree": "auto", "backend": "auto"},
     # the best measured on lego (3000 beat 6000 there: sparse views overfit longer runs)
-    "best": {"iters": 3000, "resolution_scale": 1.0, "prior": "auto", "pseudo_views": 16, "rounds": 3,
+    "best": {"iters": 3000, "resolution_scale": 1.0, "max_side": 1600, "prior": "auto", "pseudo_views": 16, "rounds": 3,
              "sh_degree": "auto", "backend": "auto"},
 }
 PRESET_NAMES = tuple(PRESETS)
 
 # preset key -> `gsgs train` argument dest (as gsgs_engine.commands.train and
 # gsgs_engine.priors.config.add_prior_arguments name them)
-ARG_DESTS = {"iters": "iters", "resolution_scale": "resolution_scale", "prior": "prior",
+ARG_DESTS = {"iters": "iters", "resolution_scale": "resolution_scale", "max_side": "max_side", "prior": "prior",
              "pseudo_views": "pseudo_views", "rounds": "rounds", "backend": "backend", "sh_degree": "sh_degree"}
 
 

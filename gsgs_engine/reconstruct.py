@@ -141,7 +141,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "mvs_max_side", "densify", "max_gaussians", "prior", "prior_settings",
                "coarse_fraction", "coarse_scale",
-               "resolution_scale", "background", "preset", "effects", "techniques"}
+               "resolution_scale", "max_side", "background", "preset", "effects", "techniques"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
@@ -181,11 +181,12 @@ def run_train_job(job) -> None:
     scene = load_scene(path, format=data.get("format", "auto"), train_split=data.get("train_split"),
                        train_views=data.get("train_views"), train_ids=data.get("train_ids"),
                        resolution_scale=float(settings.get("resolution_scale", 1.0)), background=background,
-                       frames=data.get("frames"))
+                       frames=data.get("frames"), max_side=int(settings.get("max_side") or 0))
     resume = ckpt.latest_checkpoint(job.checkpoint_dir) is not None
     plan = {"data": str(path), "format": scene.format or data.get("format", "auto"),
             "train_split": data.get("train_split"), "frames": data.get("frames"),
-            "resolution_scale": float(settings.get("resolution_scale", 1.0)), "job": str(job.root)}
+            "resolution_scale": scene.resolution_scale, "max_side": int(settings.get("max_side") or 0) or None,
+            "job": str(job.root)}
     from gsgs_engine.effect_plan import overrides_from_settings
     from gsgs_engine.io.world_scale import camera_dicts_to_internal
     from gsgs_engine.priors.config import prior_config_from_settings

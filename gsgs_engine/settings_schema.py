@@ -69,6 +69,7 @@ TRAIN = {
     "max_gaussians": Rule("int", 1, 100_000_000),
     "prior": Rule("str", allow_none=True, flag="--prior"),
     "resolution_scale": Rule("float", 0, 4, lo_open=True, flag="--resolution-scale"),
+    "max_side": Rule("int", 0, 100_000, flag="--max-side"),
     "background": Rule("background"),
     "preset": Rule("str", allow_none=True),
 }

@@ -34,6 +34,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--iters", type=int, default=None, help="training iterations (default: the preset's)")
     p.add_argument("--resolution-scale", type=float, default=None,
                    help="train on images scaled by this (default: the preset's)")
+    p.add_argument("--max-side", type=int, default=None,
+                   help="train on views at most this many px on their longer side (default: the preset's; 0: no cap)")
     p.add_argument("--max-image-size", type=int, default=1600, help="SfM works on photos of this longer side")
     p.add_argument("--prior", default=None, choices=["auto", "diffusion", "warp", "depth", "none"],
                    help="generative prior (default: the preset's, none = plain 3DGS; auto: diffusion when model "
@@ -92,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
             s.iterations = args.iters
         if args.resolution_scale is not None:
             s.resolution_scale = args.resolution_scale
+        if args.max_side is not None:
+            s.max_side = args.max_side
         if args.prior is not None:
             s.generator = args.prior
         if s.generator == "none" and len(pseudo_paths.poses_from_json(s.pseudo_poses)):

@@ -53,6 +53,7 @@ def _off_preset(s, name: str) -> None:
     s.iterations = p["iters"] + 7
     s.rounds = (p["rounds"] + 1) % 20
     s.resolution_scale = 0.5 if p["resolution_scale"] != 0.5 else 0.25
+    s.max_side = p["max_side"] + 16
     s.generator = "warp" if p["prior"] != "warp" else "depth"
 
 
@@ -102,7 +103,7 @@ def test_editing_a_field_away_from_the_preset_makes_it_custom(addon, field):
     setattr(s, field, getattr(s, field))  # the same value: still the preset
     assert s.preset == name
     other = {"iterations": s.iterations + 1, "rounds": (s.rounds + 1) % 20,
-             "resolution_scale": 0.5 if s.resolution_scale != 0.5 else 0.25,
+             "resolution_scale": 0.5 if s.resolution_scale != 0.5 else 0.25, "max_side": s.max_side + 16,
              "generator": "warp" if s.generator != "warp" else "depth"}[field]
     setattr(s, field, other)
     assert s.preset == "custom" and getattr(s, field) == pytest.approx(other)
@@ -134,6 +135,7 @@ def test_jobs_written_by_the_addon_carry_the_preset_and_read_as_apply_preset(add
     assert settings["preset"] == name
     assert settings["iters"] == p["iters"] and settings["prior"] == p["prior"]
     assert settings["resolution_scale"] == pytest.approx(p["resolution_scale"])
+    assert settings["max_side"] == p["max_side"]
     assert settings["prior_settings"]["rounds"] == p["rounds"]
     assert settings["prior_settings"]["num_pseudo"] == max(p["pseudo_views"], 1)
     if p["sh_degree"] != "auto":
@@ -162,6 +164,7 @@ def test_engine_reads_a_bare_preset_job_as_apply_preset(tmp_path, name):
     assert _engine_configs(settings) == _preset_configs(name)
     resolved = settings_with_preset(settings)
     assert resolved["resolution_scale"] == PRESETS[name]["resolution_scale"]  # what run_train_job loads at
+    assert resolved["max_side"] == PRESETS[name]["max_side"]  # ... and the size cap it loads with
     assert resolved["prior"] == PRESETS[name]["prior"]  # what run_train_job branches on
 
 

@@ -154,3 +154,9 @@ def test_training_estimate_reproduces_its_reference_runs():
     assert train_estimate.estimate_seconds(1000, 504, 378, 0.5, "none") < 200.0
     assert train_estimate.estimate_seconds(2000, 504, 378, 1.0, "none") == pytest.approx(400.0)
     assert train_estimate.format_duration(4000) == "67 min"
+    # the size cap, as the engine's loader applies it: after the scale, the longer side at most max_side
+    assert train_estimate.train_size(1600, 850, 1.0, 800) == (800, 425)
+    assert train_estimate.train_size(1600, 850, 0.25, 800) == (400, 212)  # already within the cap
+    assert train_estimate.train_size(850, 1600, 1.0, 0) == (850, 1600)
+    assert train_estimate.estimate_seconds(1000, 1600, 850, 1.0, "none", 800) == pytest.approx(
+        train_estimate.estimate_seconds(1000, 800, 425, 1.0, "none"))

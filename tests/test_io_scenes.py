@@ -157,6 +157,22 @@ def test_lego_resolution_scale():
     assert view.image().shape == (100, 100, 3) and view.alpha().shape == (100, 100)
 
 
+def test_max_side_caps_the_longer_side_after_the_scale(tmp_path):
+    root = tiny_nerf(tmp_path, sizes=[(64, 48)] * 5)
+    scene = load_scene(root, max_side=32)  # 64x48 -> 32x24: the scale that brings the longer side to 32
+    assert scene.resolution_scale == pytest.approx(0.5)
+    for view in scene.views:
+        assert (view.camera.width, view.camera.height) == (32, 24)
+    assert scene.train[0].image().shape == (24, 32, 3)
+    same = load_scene(root, resolution_scale=0.5)
+    assert same.train[0].camera.fx == pytest.approx(scene.train[0].camera.fx)
+    capped = load_scene(root, resolution_scale=0.75, max_side=24)  # 48x36 after the scale, then 24x18
+    assert capped.resolution_scale == pytest.approx(0.375) and capped.test[0].camera.width == 24
+    for cap in (None, 0, 64, 1000):  # no cap, or one the views are within: loaded as they are
+        scene = load_scene(root, max_side=cap)
+        assert scene.resolution_scale == 1.0 and scene.train[0].camera.width == 64
+
+
 def test_loading_decodes_no_image(monkeypatch):
     calls = []
     real = cv2.imread

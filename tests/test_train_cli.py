@@ -123,6 +123,21 @@ def test_train_command_in_process_writes_everything(tiny_scene, tmp_path):
     assert ev["ssim"] == pytest.approx(metrics["ssim"], abs=1e-5)
 
 
+def test_max_side_trains_and_evaluates_at_the_capped_size(tiny_scene, tmp_path):
+    from gsgs_engine.cli import main
+
+    out = tmp_path / "run"
+    assert main(["train", str(tiny_scene), "--out", str(out), "--iters", "4", "--sh-degree", "0",
+                 "--init-points", "200", "--max-side", str(SIZE // 2)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    plan = metrics["plan"]
+    assert plan["resolution"] == [SIZE // 2, SIZE // 2] and plan["max_side"] == SIZE // 2
+    assert plan["resolution_scale"] == pytest.approx(0.5)  # the scale used, which eval re-loads at
+    assert main(["eval", str(out), "--data", str(tiny_scene)]) == 0
+    ev = json.loads((out / "eval.json").read_text())
+    assert ev["resolution_scale"] == pytest.approx(0.5) and ev["psnr"] == pytest.approx(metrics["psnr"], abs=1e-4)
+
+
 def test_bad_arguments_fail_with_one_line(tiny_scene, tmp_path, capsys):
     from gsgs_engine.cli import main
 
@@ -130,6 +145,8 @@ def test_bad_arguments_fail_with_one_line(tiny_scene, tmp_path, capsys):
     assert "--prior 'magic' is not available" in capsys.readouterr().err
     assert main(["train", str(tiny_scene), "--out", str(tmp_path / "b"), "--iters", "0"]) == 2
     assert "--iters must be at least 1" in capsys.readouterr().err
+    assert main(["train", str(tiny_scene), "--out", str(tmp_path / "c"), "--max-side", "-1"]) == 2
+    assert "--max-side must be at least 0" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "nothing"), "--data", str(tiny_scene)]) == 2
     assert "no point_cloud.ply" in capsys.readouterr().err
 

@@ -77,7 +77,9 @@ def _has_cuda() -> bool:
 
 def cell_id(cell: dict) -> str:
     """A readable, unique name for a cell's settings."""
-    return (f"it{cell['iters']}_rs{cell['resolution_scale']:g}_{cell['prior']}_pv{cell['pseudo_views']}"
+    return (f"it{cell['iters']}_rs{cell['resolution_scale']:g}"
+            + (f"_ms{cell['max_side']}" if cell.get("max_side") else "")
+            + f"_{cell['prior']}_pv{cell['pseudo_views']}"
             f"_r{cell['rounds']}_sh{cell['sh_degree']}_{cell['backend']}"
             + ("" if cell.get("depth_reg", True) else "_nodepth"))
 

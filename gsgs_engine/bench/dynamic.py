@@ -1,13 +1,18 @@
-"""`gsgs bench dynamic --cameras N --out DIR`: 4D vs two static baselines on the 4D validation scene.
+"""`gsgs bench dynamic --cameras 3,6,9 --out DIR [--data DIR]`: 4D vs two static baselines on the same views.
 
-Renders the project's animated Blender scene (gsgs_blender.dynamic_scene; reused when a matching
-render is in DIR/scene or --data), trains on N training cameras (camera 0 held out, N evenly
-from the rest, every frame) and evaluates each model on the held-out camera at every frame:
+Without --data it renders the project's animated Blender scene (gsgs_blender.dynamic_scene; reused
+when a matching render is in DIR/scene) and holds out camera 0. With --data it takes any multi-view
+video the loaders read: a CMU Panoptic capture (io.panoptic: train on N of its 27 training cameras,
+test on its 4 test cameras at every frame) or a scene in the dynamic layouts (io.dynamic). For each
+N of --cameras it trains on N cameras at every frame and evaluates each model on the test views:
   4d               one SpacetimeModel over all frames (rendered at each view's time)
   static_all       one 3D model over all frames (time ignored)
   static_per_frame one 3D model per frame, trained on that frame's N views
-PSNR / SSIM are averaged over time; train_seconds is the training loop's wall time (per-frame:
-summed over frames). Writes DIR/results.json and prints a table.
+PSNR / SSIM / LPIPS (VGG) are averaged over the test views (every test camera at every frame), and
+PSNR inside the dynamic region beside them (bench.dynamic_region: foreground masks, or the pixels
+that change over time), so a model that freezes the moving people cannot hide behind the static
+background. train_seconds is the training loop's wall time (per-frame: summed over frames). Writes
+DIR/results.json (one entry per camera count) and prints a table per count.
 """
 
 from __future__ import annotations
@@ -25,12 +30,18 @@ VARIANTS = ("4d", "static_all", "static_per_frame")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--cameras", type=int, default=3, help="training cameras (3, 6 or 9 in the paper's protocol)")
+    parser.add_argument("--cameras", default="3",
+                        help="training cameras, one count or several: 3,6,9 (the paper's protocol; default 3)")
     parser.add_argument("--out", required=True, help="output folder (results.json, renders, the rendered scene)")
-    parser.add_argument("--data", default=None, help="a dynamic scene folder to use instead of rendering one "
-                                                      "(default: DIR/scene, rendered when missing)")
+    parser.add_argument("--data", default=None, help="a multi-view video to use instead of rendering one: a Panoptic "
+                                                      "capture or a dynamic scene folder (default: DIR/scene, "
+                                                      "rendered when missing)")
     parser.add_argument("--ring", type=int, default=10, help="cameras in the rendered ring (camera 0 is held out)")
-    parser.add_argument("--frames", type=int, default=10, help="frames rendered / used")
+    parser.add_argument("--frames", type=int, default=10,
+                        help="frames rendered / used (a Panoptic capture: its first N frames)")
+    parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale of --data's views")
+    parser.add_argument("--no-lpips", action="store_true",
+                        help="skip LPIPS (about 7 s a 640x360 view on a 2-core CPU): for screening runs")
     parser.add_argument("--size", type=int, default=64, help="rendered image size in pixels (square)")
     parser.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel")
     parser.add_argument("--iters", type=int, default=600, help="training steps of the 4D and static_all models")
@@ -75,18 +86,23 @@ def _subscene(scene, train_idx: list[int], test_idx: list[int]):
                  far=scene.far, has_alpha=scene.has_alpha, world_scale=scene.world_scale)
 
 
-def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str) -> dict:
+def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, region_fn=None,
+                lpips: bool = True) -> dict:
     from gsgs_engine.train.evaluate import evaluate_views
 
     trainer.setup()
     trainer.train()
     ev = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree), test_views,
-                        renders_dir=renders_dir)
+                        renders_dir=renders_dir, region_fn=region_fn, lpips=lpips)
+    region = ev.get("psnr_region")
     log(f"[bench dynamic] {label}: {trainer.step} steps, {trainer.train_seconds:.1f}s, "
-        f"{trainer.model.num_gaussians} Gaussians, held-out PSNR {ev['psnr']:.2f}")
-    return {"psnr": ev["psnr"], "ssim": ev["ssim"], "train_seconds": trainer.train_seconds,
-            "iters": trainer.step, "num_gaussians": trainer.model.num_gaussians, "init": trainer.init_info.to_dict(),
-            "per_view": [{"name": v["name"], "time": t.camera.time, "psnr": v["psnr"], "ssim": v["ssim"]}
+        f"{trainer.model.num_gaussians} Gaussians, held-out PSNR {ev['psnr']:.2f}"
+        + (f", dynamic region {region:.2f}" if region is not None else ""))
+    return {"psnr": ev["psnr"], "ssim": ev["ssim"], "lpips": ev["lpips"], "psnr_region": region,
+            "train_seconds": trainer.train_seconds, "iters": trainer.step,
+            "num_gaussians": trainer.model.num_gaussians, "init": trainer.init_info.to_dict(),
+            "per_view": [{"name": v["name"], "time": t.camera.time, "psnr": v["psnr"], "ssim": v["ssim"],
+                          "lpips": v["lpips"], "psnr_region": v.get("psnr_region")}
                          for v, t in zip(ev["per_view"], test_views)]}
 
 
@@ -103,8 +119,9 @@ def _warm_up(backend: str, camera) -> None:
 
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
-                      log=print) -> dict:
+                      log=print, lpips: bool = True) -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
+    from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
     from gsgs_engine.io.ply import write_gaussian_ply
     from gsgs_engine.train.dynamic import SpacetimeTrainer, views_by_frame
@@ -121,14 +138,17 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     t0 = time.perf_counter()
     _warm_up(backend, scene.test[0].camera)
     log(f"[bench dynamic] rasteriser ready ({time.perf_counter() - t0:.1f}s, not counted in train_seconds)")
-    results: dict = {}
+    region_fn, region_what = region_masks(scene.test)
+    log(f"[bench dynamic] dynamic region: {region_what}")
+    results: dict = {"region": region_what}
     trainer = SpacetimeTrainer(scene, config(iters), log=log)
-    results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d")
+    results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips)
     (out_dir / "4d").mkdir(parents=True, exist_ok=True)
     write_gaussian_ply(out_dir / "4d" / "point_cloud.ply", trainer.model.to_ply())
 
     trainer = Trainer(scene, config(iters), log=log)  # the plain 3D trainer ignores camera.time
-    results["static_all"] = _train_eval(trainer, scene.test, out_dir / "renders" / "static_all", log, "static_all")
+    results["static_all"] = _train_eval(trainer, scene.test, out_dir / "renders" / "static_all", log, "static_all",
+                                        region_fn, lpips)
 
     train_frames = views_by_frame(scene.train)
     test_frames = views_by_frame(scene.test)
@@ -141,7 +161,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
         sub = _subscene(scene, [index[id(v)] for v in train_frames[t]], [index[id(v)] for v in test_views])
         trainer = Trainer(sub, config(per_frame_iters), log=lambda msg: None)
         r = _train_eval(trainer, sub.test, out_dir / "renders" / "static_per_frame" / f"t{t:.3f}", log,
-                        f"static_per_frame t={t:.3f}")
+                        f"static_per_frame t={t:.3f}", region_fn, lpips)
         per["per_view"].extend(r["per_view"])
         per["train_seconds"] += r["train_seconds"]
         per["iters"] += r["iters"]
@@ -149,24 +169,59 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
         per["models"] += 1
     import numpy as np
 
+    from gsgs_engine.train.evaluate import mean_present
+
     per["psnr"] = float(np.mean([v["psnr"] for v in per["per_view"]]))
     per["ssim"] = float(np.mean([v["ssim"] for v in per["per_view"]]))
+    per["lpips"] = mean_present([v["lpips"] for v in per["per_view"]]) if lpips else None
+    per["psnr_region"] = mean_present([v["psnr_region"] for v in per["per_view"]])
     results["static_per_frame"] = per
     return results
 
 
 def format_table(results: dict) -> str:
-    rows = [f"{'model':<18}{'PSNR':>8}{'SSIM':>8}{'train s':>10}{'steps':>8}{'Gaussians':>11}"]
+    def num(v, fmt: str) -> str:
+        return format(v, fmt) if v is not None else "-"
+
+    rows = [f"{'model':<18}{'PSNR':>8}{'region':>8}{'SSIM':>8}{'LPIPS':>8}{'train s':>10}{'steps':>8}"
+            f"{'Gaussians':>11}"]
     for name in VARIANTS:
         r = results[name]
-        rows.append(f"{name:<18}{r['psnr']:>8.2f}{r['ssim']:>8.4f}{r['train_seconds']:>10.1f}{r['iters']:>8d}"
+        rows.append(f"{name:<18}{r['psnr']:>8.2f}{num(r.get('psnr_region'), '.2f'):>8}{r['ssim']:>8.4f}"
+                    f"{num(r.get('lpips'), '.4f'):>8}{r['train_seconds']:>10.1f}{r['iters']:>8d}"
                     f"{r['num_gaussians']:>11d}")
     return "\n".join(rows)
 
 
+def parse_camera_counts(text) -> list[int]:
+    """--cameras "3,6,9" (or one count) -> [3, 6, 9]; GsgsError naming the bad value."""
+    from gsgs_engine import GsgsError
+
+    try:
+        counts = [int(part) for part in str(text).split(",") if part.strip()]
+    except ValueError:
+        counts = []
+    if not counts or any(n < 1 for n in counts):
+        raise GsgsError(f"--cameras {text!r}: give one or more training camera counts, each at least 1, e.g. 3,6,9")
+    return counts
+
+
+def load_bench_scene(data: Path, cameras: int, frames: int, resolution_scale: float = 1.0):
+    """The scene of one camera count: a Panoptic capture through its loader (first `frames` frames),
+    anything else through io.dynamic (camera 0 held out, `frames` frames evenly)."""
+    from gsgs_engine.io.dynamic import load_dynamic_scene
+    from gsgs_engine.io.loader import detect_format
+
+    if detect_format(data) == "panoptic":
+        from gsgs_engine.io import load_scene
+
+        return load_scene(data, format="panoptic", train_views=cameras, frames=f"0-{frames - 1}",
+                          resolution_scale=resolution_scale)
+    return load_dynamic_scene(data, train_cameras=cameras, max_frames=frames, resolution_scale=resolution_scale)
+
+
 def run(args) -> int:
     from gsgs_engine import GsgsError
-    from gsgs_engine.io.dynamic import load_dynamic_scene
     from gsgs_engine.job import write_json_atomic
 
     out = Path(args.out)
@@ -175,10 +230,11 @@ def run(args) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    if args.cameras < 1:
-        raise GsgsError(f"--cameras must be at least 1 (got {args.cameras})")
+    counts = parse_camera_counts(args.cameras)
     if args.iters < 1 or args.per_frame_iters < 1:
         raise GsgsError("--iters and --per-frame-iters must be at least 1")
+    if args.frames < 1:
+        raise GsgsError(f"--frames must be at least 1 (got {args.frames})")
     rendered = None
     if args.data is not None:
         data = Path(args.data)
@@ -192,23 +248,35 @@ def run(args) -> int:
             rendered = time.perf_counter() - t0
         else:
             print(f"[bench dynamic] reusing the rendered scene in {data}", flush=True)
-    scene = load_dynamic_scene(data, train_cameras=args.cameras, max_frames=args.frames)
-    train_cams = sorted({v.camera.extra["camera_index"] for v in scene.train})
-    print(f"[bench dynamic] {len(scene.train)} training views (cameras {train_cams}), {len(scene.test)} held-out "
-          f"views (camera 0)", flush=True)
     log = lambda msg: print(msg, flush=True)  # noqa: E731
-    results = run_dynamic_bench(scene, out, args.iters, args.per_frame_iters, args.init, args.init_points,
-                                args.sh_degree, args.backend, args.seed, log=log)
-    first = scene.test[0].camera
-    results["setup"] = {"data": str(data), "train_cameras": train_cams, "test_camera": 0,
-                        "frames": len({v.camera.time for v in scene.test}), "resolution": [first.width, first.height],
-                        "iters": args.iters, "per_frame_iters": args.per_frame_iters, "init": args.init,
-                        "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
-                        "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
-                        "metric": "PSNR / SSIM on the held-out camera, averaged over every frame"}
-    write_json_atomic(out / "results.json", results)
-    print(format_table(results))
-    print(f"[bench dynamic] wrote {out / 'results.json'}")
+    every: dict = {}
+    for n in counts:
+        scene = load_bench_scene(data, n, args.frames, args.resolution_scale)
+        train_cams = sorted({v.camera.extra["camera_index"] for v in scene.train})
+        test_cams = sorted({v.camera.extra["camera_index"] for v in scene.test})
+        print(f"[bench dynamic] {n} cameras: {len(scene.train)} training views (cameras {train_cams}), "
+              f"{len(scene.test)} test views (cameras {test_cams})", flush=True)
+        run_dir = out if len(counts) == 1 else out / f"cameras_{n}"
+        results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
+                                    args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips)
+        first = scene.test[0].camera
+        results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
+                            "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
+                            "resolution": [first.width, first.height], "iters": args.iters,
+                            "per_frame_iters": args.per_frame_iters, "init": args.init,
+                            "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
+                            "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
+                            "lpips": "none" if args.no_lpips else "vgg",
+                            "metric": "PSNR / SSIM / LPIPS on the test cameras, averaged over every test view "
+                                      "(camera x frame); region: PSNR inside " + results["region"]}
+        write_json_atomic(run_dir / "results.json", results)
+        print(f"[bench dynamic] {n} training cameras:")
+        print(format_table(results))
+        print(f"[bench dynamic] wrote {run_dir / 'results.json'}", flush=True)
+        every[str(n)] = results
+    if len(counts) > 1:
+        write_json_atomic(out / "results.json", {"cameras": every})
+        print(f"[bench dynamic] wrote {out / 'results.json'} ({', '.join(map(str, counts))} cameras)")
     return 0
 
 
@@ -225,4 +293,5 @@ def _rendered_matches(data: Path, ring: int, frames: int, size: int) -> bool:
     return all((data / (f["file_path"] + ".png")).is_file() for f in meta.get("frames", []))
 
 
-__all__ = ["add_arguments", "run", "run_dynamic_bench", "format_table", "render_scene"]
+__all__ = ["add_arguments", "run", "run_dynamic_bench", "format_table", "render_scene", "parse_camera_counts",
+           "load_bench_scene"]

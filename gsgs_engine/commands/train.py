@@ -35,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(see gsgs_engine.priors.config)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale factor, e.g. 0.5")
+    parser.add_argument("--max-side", type=int, default=0, metavar="PX",
+                        help="train on views at most PX pixels on their longer side, after --resolution-scale "
+                             "(default 0: no cap; the presets set one, see gsgs_engine.presets)")
     parser.add_argument("--sh-degree", type=int, default=None,
                         help="maximum SH degree 0..3 (default: the effect plan measures view dependence)")
     parser.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (0 = only on exit)")
@@ -141,9 +144,11 @@ def run(args: argparse.Namespace) -> int:
         train_ids = [s.strip() for s in args.train_ids.split(",") if s.strip()] if args.train_ids else None
         scene = load_scene(args.data, format=args.format, train_split=args.train_split,
                            train_views=args.train_views, train_ids=train_ids,
-                           resolution_scale=args.resolution_scale, background=background, frames=args.frames)
+                           resolution_scale=args.resolution_scale, background=background, frames=args.frames,
+                           max_side=args.max_side)
         plan = {"data": args.data_label or str(args.data), "format": scene.format or args.format, "train_split": args.train_split,
-                "frames": args.frames, "resolution_scale": args.resolution_scale, "prior": args.prior, "preset": args.preset,
+                "frames": args.frames, "resolution_scale": scene.resolution_scale, "max_side": args.max_side or None,
+                "prior": args.prior, "preset": args.preset,
                 "preset_changed": preset_changed}
         overrides = overrides_from_args(args)
         if args.random_background:

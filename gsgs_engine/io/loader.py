@@ -56,7 +56,7 @@ def detect_format(path) -> str:
 
 def load_scene(path, format: str = "auto", train_split: str | None = None, train_views: int | None = None,
                train_ids: list | None = None, resolution_scale: float | None = None,
-               background=None, frames=None) -> Scene:
+               background=None, frames=None, max_side: int | None = None) -> Scene:
     """Load a scene; images stay on disk until a View asks for them.
 
     A scene much smaller or larger than usual comes back in rescaled units (scene.world_scale,
@@ -72,11 +72,22 @@ def load_scene(path, format: str = "auto", train_split: str | None = None, train
       times renormalised over them; one frame trains a static model. Default: every frame.
     resolution_scale (default 1.0) resizes images and intrinsics; background (default white) is
     what RGBA images are composited on. For a job folder, unset arguments come from job.json.
+    max_side (default: none) caps the longer side of every view after resolution_scale: a scene whose
+      largest view is longer is loaded at the scale that brings it to max_side px (3DGS's own loader
+      caps at 1600 px the same way). The scale used is scene.resolution_scale.
     """
     from gsgs_engine.io.world_scale import normalise_scene
 
-    return normalise_scene(_load_scene(path, format, train_split, train_views, train_ids, resolution_scale,
-                                       background, frames))
+    scene = _load_scene(path, format, train_split, train_views, train_ids, resolution_scale, background, frames)
+    scale = 1.0 if resolution_scale is None else float(resolution_scale)
+    if max_side is not None and max_side > 0:
+        longest = max((max(v.camera.width, v.camera.height) for v in scene.views), default=0)
+        if longest > max_side:
+            scale *= max_side / longest
+            # images are lazy: loading again at the capped scale reads no pixels
+            scene = _load_scene(path, format, train_split, train_views, train_ids, scale, background, frames)
+    scene.resolution_scale = scale
+    return normalise_scene(scene)
 
 
 def _load_scene(path, format, train_split, train_views, train_ids, resolution_scale, background, frames) -> Scene:

@@ -70,6 +70,7 @@ class Scene:
     point_colors: np.ndarray | None = None  # (N, 3) in [0, 1]
     has_alpha: bool = False
     world_scale: float = 1.0  # world length = internal length x world_scale (gsgs_engine.io.world_scale)
+    resolution_scale: float = 1.0  # image scale the views were loaded at (load_scene's, after its max_side cap)
 
     def split(self, name: str) -> list[View]:
         if name not in self.splits:

@@ -43,14 +43,23 @@ def lpips_fields(evaluation: dict) -> dict:
     return fields
 
 
+def mean_present(values: list) -> float | None:
+    present = [v for v in values if v is not None]
+    return float(np.mean(present)) if present else None
+
+
 def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = None,
-                   max_renders: int | None = None) -> dict:
+                   max_renders: int | None = None, region_fn: Callable | None = None,
+                   lpips: bool = True) -> dict:
     """Render every view with `render_fn(camera) -> RenderOutput` and compare with its image.
 
     Renders are written for all views when there are at most 30, else for the first 8
     (or `max_renders`). Returns mean psnr / ssim / lpips and a per-view list.
+    region_fn(view) -> bool H x W mask or None: PSNR inside that region too ("psnr_region", the mean
+    over the views whose region has pixels; gsgs bench dynamic scores the moving people with it).
+    lpips=False skips LPIPS (its value is then None, with the reason).
     """
-    from gsgs_engine.metrics import lpips_or_none, psnr, ssim
+    from gsgs_engine.metrics import lpips_or_none, masked_psnr, psnr, ssim
 
     if max_renders is None:
         max_renders = len(views) if len(views) <= ALL_RENDERS_UP_TO else MAX_RENDERS_WHEN_MANY
@@ -63,8 +72,11 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
         with torch.no_grad():
             img = render_fn(view.camera).color.detach().clamp(0.0, 1.0).cpu()  # the model may live on a GPU
             entry = {"name": view.name, "psnr": float(psnr(img, gt)), "ssim": float(ssim(img, gt))}
+            if region_fn is not None:
+                region = region_fn(view)
+                entry["psnr_region"] = None if region is None else masked_psnr(img, gt, region)
             for net in LPIPS_NETS:
-                lp, reason = lpips_or_none(img, gt, net=net)
+                lp, reason = lpips_or_none(img, gt, net=net) if lpips else (None, "LPIPS not asked for")
                 entry[f"lpips_{net}"] = lp
                 if lp is None:
                     lpips_reason = lpips_reason or reason
@@ -81,6 +93,7 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
            for net, values in lpips_values.items()},
         "num_views": len(per_view),
         "per_view": per_view,
+        **({"psnr_region": mean_present([v.get("psnr_region") for v in per_view])} if region_fn is not None else {}),
         "seconds": time.perf_counter() - t0,
     }
     result["lpips"] = result[f"lpips_{LPIPS_MAIN_NET}"]

@@ -1,0 +1,104 @@
+"""The dynamic-region score of `gsgs bench dynamic`: masked PSNR, changing pixels, foreground masks, and
+the bench on a tiny Panoptic capture with several camera counts."""
+
+from __future__ import annotations
+
+import json
+import math
+from argparse import Namespace
+
+import numpy as np
+import pytest
+import torch
+
+from gsgs_engine import GsgsError
+from gsgs_engine.bench.dynamic import parse_camera_counts
+from gsgs_engine.bench.dynamic_region import CHANGE_THRESHOLD, changing_pixels, region_masks
+from gsgs_engine.metrics import masked_psnr, psnr
+from tests.test_io_panoptic import TEST_IDS, write_meta
+
+
+def test_masked_psnr_scores_only_the_region():
+    rng = np.random.default_rng(0)
+    gt = torch.from_numpy(rng.random((12, 16, 3), dtype=np.float32))
+    img = gt.clone()
+    img[2:6, 3:9] += 0.1  # an error inside the region only
+    region = np.zeros((12, 16), bool)
+    region[2:6, 3:9] = True
+    assert masked_psnr(img, gt, region) == pytest.approx(20.0, abs=1e-3)  # mse 0.01 over the region
+    assert masked_psnr(img, gt, np.ones((12, 16), bool)) == pytest.approx(float(psnr(img, gt)), abs=1e-4)
+    assert masked_psnr(img, gt, ~region) == math.inf  # no error outside the region
+    assert masked_psnr(img, gt, np.zeros((12, 16), bool)) is None
+    with pytest.raises(ValueError, match="mask is"):
+        masked_psnr(img, gt, np.ones((6, 8), bool))
+
+
+def test_changing_pixels_find_what_moves():
+    frames = []
+    for f in range(5):
+        im = np.full((10, 20, 3), 0.4, np.float32)
+        im[4:6, 2 + 3 * f:4 + 3 * f] = 0.9  # a bright block moving right
+        im += np.float32(0.3 * CHANGE_THRESHOLD) * (f % 2)  # flicker below the threshold: not motion
+        frames.append(im)
+    masks = changing_pixels(frames)
+    for f, m in enumerate(masks):
+        expected = np.zeros((10, 20), bool)
+        expected[4:6, 2 + 3 * f:4 + 3 * f] = True
+        assert np.array_equal(m, expected), f
+    with pytest.raises(ValueError, match="at least 3 frames"):
+        changing_pixels(frames[:2])
+
+
+@pytest.fixture
+def pano(tmp_path):
+    root = tmp_path / "pano"
+    write_meta(root, [1, 2, 3, 4, 5, 6, 7], 3, "train_meta.json")
+    write_meta(root, TEST_IDS, 3, "test_meta.json", seg=False)
+    return root
+
+
+def test_region_masks_prefer_the_capture_masks(pano):
+    from gsgs_engine.io import load_scene
+
+    scene = load_scene(pano, train_views=3)
+    fn, what = region_masks(scene.train)  # training cameras have seg/ masks
+    assert "foreground masks" in what
+    m = fn(scene.train[0])
+    assert m.dtype == bool and m[3, 5] and not m[0, 0]
+    fn, what = region_masks(scene.test)  # test cameras have none: the pixels that change over time
+    assert "change over time" in what
+    masks = [fn(v) for v in scene.test]
+    assert all(m is not None and m.shape == (12, 16) for m in masks)
+    assert masks[0].any()  # the tiny capture's colour moves 40/255 a frame
+    fn, _ = region_masks([v for v in scene.test if v.camera.extra["frame"] < 2])
+    assert fn(scene.test[0]) is None  # two frames of a camera: no median, no region
+
+
+def test_camera_counts_are_parsed():
+    assert parse_camera_counts("3,6,9") == [3, 6, 9] and parse_camera_counts(3) == [3]
+    for bad in ("", "0", "3,x", "-1"):
+        with pytest.raises(GsgsError, match="--cameras"):
+            parse_camera_counts(bad)
+
+
+def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
+    from gsgs_engine.bench.dynamic import run
+
+    out = tmp_path / "bench"
+    args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
+                     per_frame_iters=3, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
+                     threads=0, resolution_scale=1.0, no_lpips=True)
+    assert run(args) == 0
+    every = json.loads((out / "results.json").read_text())["cameras"]
+    assert sorted(every) == ["2", "3"]
+    for n, results in every.items():
+        setup = results["setup"]
+        assert setup["format"] == "panoptic" and len(setup["train_cameras"]) == int(n)
+        assert setup["test_cameras"] == TEST_IDS and setup["frames"] == 3 and setup["lpips"] == "none"
+        assert "change over time" in results["region"]
+        for name in ("4d", "static_all", "static_per_frame"):
+            r = results[name]
+            assert len(r["per_view"]) == 6  # two test cameras x three frames
+            assert np.isfinite(r["psnr"]) and np.isfinite(r["psnr_region"]) and r["lpips"] is None
+        assert (out / f"cameras_{n}" / "results.json").is_file()
+        assert (out / f"cameras_{n}" / "4d" / "point_cloud.ply").is_file()
