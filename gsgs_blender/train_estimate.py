@@ -1,27 +1,35 @@
 """A training time estimate the Train panel states before a job starts.
 
-Scaled from measured runs on the project's 2-core CPU machine with the multi-threaded kernel
-(2026-11-23, `gsgs bench sparse` seed 0, docs/sparse_bench.md): LLFF 3 views at 504x378, 1000
-steps, plain 3DGS took 231 s (flower) and 180 s (horns) including planning and initialisation,
-so 200 s is the reference; `--prior auto` (MVS init, the sparse-view techniques, warp-inpaint
-pseudo views) took 1.61x and 1.77x that, rounded up to 1.75x. (The 3-seed means of the recipe as it
-stands, issue 14's second grid, 2026-11-24: 193 s plain, 324 s auto with the stereo on the clock,
-1.68x; the factor is left at 1.75, 4 % above.) Photos of real scenes grow Gaussian counts like
-LLFF does (150k+ without the count control); synthetic orbits cost less (lego 400 px: 81 s plain).
-Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71,
-the exponent measured between 200x200 and 1600x871 px runs (the previous kernel; issue 15's
-photo job). Checked on the default headless workflow (scripts/reconstruct.py on photos_santorini,
-3 photos, 1000 steps at 1600x871, preset balanced, 2026-11-23): stated "~24 min" before training,
-took 1474 s (24.6 min) end to end. It is a rough figure (Gaussian counts, densification and the machine change it) and
-the panel says so.
+Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine with this
+build (seed 0, 1000 steps, 2026-11-25, one after another with nothing else running), one reference per
+recipe the engine can run, because they differ more than any single factor allows:
+  - plain 3DGS: LLFF flower, 3 views at 504x378, 271 s (157,698 Gaussians: without the count control
+    real photos grow them unchecked);
+  - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
+    dropout, binocular shift, no pseudo views): NeRF-synthetic lego, 8 views at 400x400, 201 s;
+  - `--prior auto` on a forward-facing rig (the same plus warp-inpaint pseudo views, which add ~23 % of
+    the renders' time): LLFF flower at 504x378, 449 s.
+Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
+optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, else forward-facing.
+Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71 (measured
+between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
+Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3
+photos, balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), 2026-11-25: the orbit
+reference gives 250 s; the training job took 262 s, the whole workflow 289 s. It is a rough figure
+(scene content, Gaussian counts and the machine's day move it by tens of percent) and the panel says so.
 """
 
 from __future__ import annotations
 
-REFERENCE_SECONDS = 200.0  # 1000 it, 504x378 px (LLFF 3 views), 2-core CPU, prior none
+from gsgs_engine import GsgsError
+
 REFERENCE_ITERS = 1000
-REFERENCE_PIXELS = 504 * 378
-PRIOR_FACTOR = 1.75  # --prior auto on the same runs (flower 1.61x, horns 1.77x)
+# recipe -> (seconds for REFERENCE_ITERS steps, pixels of a training view) measured as above
+REFERENCES = {
+    "plain": (271.0, 504 * 378),
+    "orbit": (201.0, 400 * 400),
+    "forward": (449.0, 504 * 378),
+}
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 
@@ -36,14 +44,31 @@ def train_size(width: int, height: int, resolution_scale: float, max_side: int =
     return round(width * scale), round(height * scale)
 
 
+def recipe(generator: str, cameras=None) -> str:
+    """Which measured recipe a run will be: "plain", "orbit" or "forward" (see REFERENCES).
+
+    The generative priors (warp, diffusion) always render pseudo views; auto does where the cameras
+    do not look at a common point, as the effect plan decides (cameras: gsgs_engine Camera objects)."""
+    if generator in ("none", "depth"):
+        return "plain"
+    if generator != "auto":
+        return "forward"
+    if cameras is not None and len(cameras) >= 2:
+        from gsgs_engine.cameras import focus_point
+
+        if focus_point(cameras)[1] == "optical axes intersection":
+            return "orbit"
+    return "forward"
+
+
 def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str,
-                     max_side: int = 0) -> float:
+                     max_side: int = 0, cameras=None) -> float:
     """Rough CPU seconds of a training run of `iterations` steps on views of width x height."""
+    seconds, ref_pixels = REFERENCES[recipe(generator, cameras)]
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
-    per_step = REFERENCE_SECONDS / REFERENCE_ITERS * max(pixels / REFERENCE_PIXELS, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT
-    factor = PRIOR_FACTOR if generator not in ("none", "depth") else 1.0
-    return iterations * per_step * factor
+    per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT
+    return iterations * per_step
 
 
 def format_duration(seconds: float) -> str:
@@ -67,6 +92,13 @@ def estimate_text(scene) -> str:
     width = max(w for w, _ in sizes)
     height = max(h for _, h in sizes)
     s = scene.gsgs
-    seconds = estimate_seconds(s.iterations, width, height, s.resolution_scale, s.generator, s.max_side)
+    try:
+        cameras = [camera_convert.camera_from_object(o, scene) for o in objs]
+    except GsgsError:  # a camera the engine cannot take: the job will say so; estimate as forward-facing
+        cameras = None
+    seconds = estimate_seconds(s.iterations, width, height, s.resolution_scale, s.generator, s.max_side, cameras)
     w, h = train_size(width, height, s.resolution_scale, s.max_side)
-    return f"~{format_duration(seconds)} on a 2-core CPU ({s.iterations} steps on {w}x{h} px; a GPU is far faster)"
+    kind = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[
+        recipe(s.generator, cameras)]
+    return (f"~{format_duration(seconds)} on a 2-core CPU ({s.iterations} steps of {kind} on {w}x{h} px; a GPU is "
+            "far faster)")
