@@ -5,6 +5,12 @@
 
 RESULT: a `gsgs train --out` folder, a job's result/ folder, or a point_cloud.ply.
 DATA: the dataset it was trained on (any format `gsgs train` reads).
+A 4D result (a SpacetimeModel PLY, trained on a multi-view video) is compared at each picked view's
+time: the engine renders the model at the view's time, and Blender plays the imported object on the
+timeline (its frame range set to the capture's frame ids, the scene frame set to the view's frame, as
+the add-on's frame-change handler does) and renders that frame; `--camera-index K` keeps one camera's
+views, so `--views 3` compares one test camera at three frames. The seconds of each timeline update
+(the viewport's per-frame cost) are recorded too.
 For N views picked evenly from the split, the script
   1. renders the engine's images and writes the ground truth (composited on the background the run
      trained with), in a separate process with the engine's python (torch);
@@ -40,6 +46,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("data", help="the dataset the result was trained on")
     p.add_argument("--views", type=int, default=5, help="test views to compare, picked evenly (default 5)")
     p.add_argument("--split", default="test", help="dataset split to take the views from (default test)")
+    p.add_argument("--frames", default=None, help="frame ids of a multi-view video, e.g. 0-9 (default: the run's "
+                                                    "recorded frames, else all)")
+    p.add_argument("--resolution-scale", type=float, default=None,
+                   help="image scale (default: the run's recorded one, else 1)")
+    p.add_argument("--camera-index", type=int, default=None,
+                   help="only the views of this camera (Camera.extra camera_index: a multi-view video's camera)")
     p.add_argument("--out", default=None, help="output folder (default RESULT_DIR/blender_fidelity)")
     p.add_argument("--engine-python", default=sys.executable,
                    help="python with torch and gsgs_engine for the engine steps (default: this one)")
@@ -72,14 +84,16 @@ def find_ply(result: Path) -> Path:
 # ---------------------------------------------------------------------------------------------
 # Engine steps (run in a child process with torch)
 # ---------------------------------------------------------------------------------------------
-def engine_render(ply: Path, data: str, split: str, count: int, out: Path) -> None:
+def engine_render(ply: Path, data: str, split: str, count: int, out: Path, camera_index: int | None = None,
+                  frames: str | None = None, resolution_scale: float | None = None) -> None:
     """Engine renders + ground truth of `count` evenly picked views; OUT/views.json lists them."""
     import numpy as np
     import torch
 
-    from gsgs_engine.gaussians import GaussianModel
+    from gsgs_engine import GsgsError
     from gsgs_engine.io import load_scene
     from gsgs_engine.io.ply import read_gaussian_ply
+    from gsgs_engine.spacetime import SpacetimeModel, model_from_ply, render_at
     from gsgs_engine.train.evaluate import write_png
     from gsgs_engine.train.trainer import render_model
 
@@ -87,13 +101,22 @@ def engine_render(ply: Path, data: str, split: str, count: int, out: Path) -> No
     metrics = ply.parent / "metrics.json"
     if metrics.is_file():
         recorded = json.loads(metrics.read_text()).get("plan", {})
-    scale = float(recorded.get("resolution_scale", 1.0))
+    scale = float(resolution_scale if resolution_scale is not None else recorded.get("resolution_scale", 1.0))
     background = tuple(float(v) for v in recorded.get("background", (1.0, 1.0, 1.0)))
-    scene = load_scene(data, resolution_scale=scale, background=background)
+    scene = load_scene(data, resolution_scale=scale, background=background,
+                       frames=frames if frames is not None else recorded.get("frames"))
     views = scene.split(split)
+    if camera_index is not None:
+        views = [v for v in views if v.camera.extra.get("camera_index") == camera_index]
+        if not views:
+            raise GsgsError(f"{data}: no {split} view of camera {camera_index}; its {split} cameras are "
+                            f"{sorted({v.camera.extra.get('camera_index') for v in scene.split(split)}, key=str)}")
     count = max(1, min(count, len(views)))
     picks = sorted({round(i * (len(views) - 1) / max(count - 1, 1)) for i in range(count)})
-    model = GaussianModel.from_ply(read_gaussian_ply(ply))
+    model = model_from_ply(read_gaussian_ply(ply))
+    is_4d = isinstance(model, SpacetimeModel)
+    if is_4d and not scene.has_time:
+        raise GsgsError(f"{ply}: a 4D result, but {data} has no time; pass the multi-view video it was trained on")
     bg = torch.tensor(background, dtype=torch.float32)
     out.mkdir(parents=True, exist_ok=True)
     listed = []
@@ -101,16 +124,32 @@ def engine_render(ply: Path, data: str, split: str, count: int, out: Path) -> No
         view = views[k]
         t0 = time.perf_counter()
         with torch.no_grad():
-            img = render_model(model, view.camera, bg, "auto").color.clamp(0.0, 1.0).cpu().numpy()
+            rendered = (render_at(model, view.camera, bg, "auto", sh_degree=model.max_sh_degree) if is_4d
+                        else render_model(model, view.camera, bg, "auto"))
+            img = rendered.color.clamp(0.0, 1.0).cpu().numpy()
         seconds = time.perf_counter() - t0
         stem = f"view_{k:03d}"
         write_png(out / f"{stem}_engine.png", img)
         write_png(out / f"{stem}_gt.png", np.asarray(view.image(), dtype=np.float32))
         listed.append({"index": k, "name": view.name, "stem": stem, "camera": view.camera.to_dict(),
-                       "engine_seconds": seconds})
-    (out / "views.json").write_text(json.dumps({"background": background, "resolution_scale": scale,
-                                                "sh_degree": model.max_sh_degree,
-                                                "num_gaussians": model.num_gaussians, "views": listed}, indent=1))
+                       "time": view.camera.time, "frame": timeline_frame(view, scene), "engine_seconds": seconds})
+    info = {"background": background, "resolution_scale": scale, "sh_degree": model.max_sh_degree,
+            "num_gaussians": model.num_gaussians, "is_4d": is_4d, "views": listed}
+    if is_4d:
+        frames = [timeline_frame(v, scene) for v in scene.views]
+        info["frame_range"] = [min(frames), max(frames)]
+    (out / "views.json").write_text(json.dumps(info, indent=1))
+
+
+def timeline_frame(view, scene) -> int | None:
+    """The Blender frame that plays a view of a multi-view video: the capture's own frame id (its times are
+    linear in the ids, io.dynamic.normalised_times), or the frame index along time when it has none."""
+    if view.camera.time is None:
+        return None
+    if "frame" in view.camera.extra:
+        return int(view.camera.extra["frame"])
+    times = sorted({v.camera.time for v in scene.views})
+    return times.index(view.camera.time)
 
 
 def engine_metrics(out: Path) -> None:
@@ -173,7 +212,7 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
     """Import, set up and render every listed view; returns seconds and settings."""
     import bpy
 
-    from gsgs_blender import node_groups, render_setup, splat_import
+    from gsgs_blender import node_groups, render_setup, splat_import, timeline
     from gsgs_blender.camera_convert import apply_camera_to_object
     from gsgs_engine.cameras import Camera
 
@@ -207,10 +246,22 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
     cam_obj = bpy.data.objects.new("gsgs_fidelity_camera", cam_data)
     scene.collection.objects.link(cam_obj)
     scene.camera = cam_obj
+    if info.get("is_4d"):
+        if not timeline.playable(obj):
+            raise RuntimeError(f"{ply}: the engine reads a 4D model, but the imported object does not play")
+        obj[timeline.FRAME_START], obj[timeline.FRAME_END] = info["frame_range"]
     per_view = []
+    updates = []
     for v in info["views"]:
         cam = Camera.from_dict(v["camera"])
         apply_camera_to_object(cam, cam_obj, scene, set_scene_frame=True)
+        if info.get("is_4d"):
+            scene.frame_set(v["frame"])
+            t = time.perf_counter()
+            played = timeline.update_object(obj, scene.frame_current)  # what the frame-change handler runs
+            updates.append(time.perf_counter() - t)
+            if abs(played - v["time"]) > 1e-6:
+                raise RuntimeError(f"frame {v['frame']} plays time {played}, the view's time is {v['time']}")
         scene.render.filepath = str(out / f"{v['stem']}_blender.png")
         t = time.perf_counter()
         bpy.ops.render.render(write_still=True)
@@ -219,6 +270,7 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
         if progress:
             progress(f"[fidelity] {v['stem']} ({cam.width}x{cam.height}) rendered in {seconds:.1f} s")
     return {"import_seconds": import_seconds, "setup_changes": changes, "render_seconds": per_view,
+            "timeline_update_seconds": updates,
             "blender_total_seconds": time.perf_counter() - t0,
             "size": node_groups.get_modifier_input(mod, "Size"),
             "transparent_bounces": scene.cycles.transparent_max_bounces,
@@ -244,7 +296,12 @@ def summarise(out: Path, blender: dict) -> dict:
     first = info["views"][0]["camera"]
     summary.update({"views": [v["name"] for v in info["views"]], "width": first["width"], "height": first["height"],
                     "num_gaussians": info["num_gaussians"], "sh_degree": info["sh_degree"],
-                    "background": info["background"], "per_view": pairs, "blender": blender})
+                    "background": info["background"], "per_view": pairs, "blender": blender,
+                    "is_4d": bool(info.get("is_4d"))})
+    if info.get("is_4d"):
+        summary["frames"] = [v["frame"] for v in info["views"]]
+        summary["timeline_update_seconds_per_frame"] = (sum(blender["timeline_update_seconds"])
+                                                        / len(blender["timeline_update_seconds"]))
     return summary
 
 
@@ -265,6 +322,9 @@ def table(summary: dict) -> str:
                  f"{summary['seconds_per_view']:.2f} s per view (engine {summary['engine_seconds_per_view']:.2f} s); "
                  f"import {b['import_seconds']:.2f} s; "
                  f"gap to the engine vs ground truth {summary['gt_gap_db']:+.2f} dB")
+    if summary.get("is_4d"):
+        lines.append(f"4D: frames {', '.join(map(str, summary['frames']))} played on the timeline; "
+                     f"{summary['timeline_update_seconds_per_frame']:.3f} s a frame to update the splats")
     return "\n".join(lines)
 
 
@@ -274,7 +334,9 @@ def run(args: argparse.Namespace) -> dict:
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     common = [str(ply), str(Path(args.data).resolve()), "--views", str(args.views), "--split", args.split,
-              "--out", str(out)]
+              "--out", str(out)] + ([] if args.camera_index is None else ["--camera-index", str(args.camera_index)])
+    common += [] if args.frames is None else ["--frames", args.frames]
+    common += [] if args.resolution_scale is None else ["--resolution-scale", str(args.resolution_scale)]
     print(f"[fidelity] engine renders of {args.views} {args.split} views ...", flush=True)
     run_engine_step(args.engine_python, "render", common)
     blender = blender_render(ply, out, args.size, args.bounces, args.samples, not args.no_dilation, args.engine,
@@ -291,7 +353,8 @@ def run(args: argparse.Namespace) -> dict:
 def main(argv=None) -> int:
     args = parse_args(argv)
     if args.engine_step == "render":
-        engine_render(Path(args.result), args.data, args.split, args.views, Path(args.out))
+        engine_render(Path(args.result), args.data, args.split, args.views, Path(args.out), args.camera_index,
+                      args.frames, args.resolution_scale)
         return 0
     if args.engine_step == "metrics":
         engine_metrics(Path(args.out))
