@@ -131,6 +131,7 @@ def load_sfm_result(scene, job_dir: str | Path) -> tuple[list, object | None]:
         f"(was {before[0]}x{before[1]} at {before[2]}%)")
     scene.camera = objects[0]
     scene.gsgs.camera_collection = coll
+    scene.gsgs.video_source = ""  # the training cameras are photos now
     pts_obj = None
     ply = job.result_dir / "points.ply"
     if ply.is_file():
@@ -253,6 +254,7 @@ class GSGS_OT_use_scene_cameras(bpy.types.Operator):
             if obj.type == "CAMERA" and obj not in cams and len(obj.users_collection) > 1:
                 coll.objects.unlink(obj)  # no longer a training view (still in its other collections)
         scene.gsgs.camera_collection = coll
+        scene.gsgs.video_source = ""  # the training cameras are these cameras' photos now
         self.report({"INFO"}, f"{len(cams)} training cameras")
         return {"FINISHED"}
 

@@ -13,6 +13,7 @@ from . import camera_convert, pseudo_paths, train_estimate
 from .ops_common import job_run, launch, new_job_dir, report_error, scene_callback, stored_path, timeout_property
 from .ops_photos import on_sfm_finished, photo_of
 from .ops_result import import_job_result
+from .ops_video import video_job_data
 from .preferences import get_prefs, prior_settings
 
 JOB_KINDS = [("sfm", "Camera Solve", ""), ("train", "Training", ""), ("validate", "Validation", "")]
@@ -61,14 +62,16 @@ def train_spec(context) -> dict:
     """Job.create keyword arguments of the scene's training job (data, settings, pseudo poses)."""
     scene = context.scene
     s = scene.gsgs
-    data = {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]}
-    points = sparse_points_file(scene)
-    if points:
-        data["points"] = points  # the solve's sparse points (xyz + rgb PLY), to initialise the splats
+    data = video_job_data(scene)  # an imported multi-view video: the job names its folder
+    if data is None:
+        data = {"path": ".", "format": "job", "cameras": training_views(scene), "background": [1.0, 1.0, 1.0]}
+        points = sparse_points_file(scene)
+        if points:
+            data["points"] = points  # the solve's sparse points (xyz + rgb PLY), to initialise the splats
     return {
         "data": data,
         "settings": job_settings(context),
-        "pseudo_poses": pseudo_paths.poses_from_json(s.pseudo_poses),
+        "pseudo_poses": [] if s.video_source else pseudo_paths.poses_from_json(s.pseudo_poses),
         "blender": {"file": bpy.data.filepath, "scene": scene.name},
     }
 

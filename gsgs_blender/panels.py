@@ -78,6 +78,14 @@ class GSGS_PT_photos(_GsgsPanel, bpy.types.Panel):
         layout.prop(s, "max_image_size")
         layout.operator("gsgs.import_photos", icon="IMPORT")
         draw_job(layout, s.sfm_job, "sfm")
+        box = layout.box()  # or a synchronised multi-view video with its calibration: a 4D job
+        box.prop(s, "video_dir")
+        row = box.row(align=True)
+        row.prop(s, "video_train_cameras")
+        row.prop(s, "video_frames")
+        box.operator("gsgs.import_video", icon="SEQUENCE")
+        if s.video_source:
+            box.label(text=f"Training on {Path(s.video_source).name} (4D)", icon="TIME")
 
 
 class GSGS_PT_cameras(_GsgsPanel, bpy.types.Panel):

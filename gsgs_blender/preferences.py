@@ -346,6 +346,18 @@ class GSGS_SceneSettings(bpy.types.PropertyGroup):
     max_image_size: IntProperty(name="Max Image Size", default=1600, min=64, max=8192,
                                 description="Larger photos are downscaled once to this longer side; SfM, "
                                             "the camera backgrounds and training use those copies")
+    video_dir: StringProperty(name="Video", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+                              description="Folder of a synchronised multi-view video with calibrated cameras (CMU "
+                                          "Panoptic, Neural 3D Video, NeRF JSON with times)")
+    video_train_cameras: IntProperty(name="Training Cameras", default=9, min=0, max=10_000,
+                                     description="Train on this many of the video's cameras, spread evenly (the "
+                                                 "sparse protocol: 3, 6 or 9; 0: all); the held-out ones are the "
+                                                 "capture's test cameras")
+    video_frames: StringProperty(name="Frames", default="",
+                                 description="Frame ids to train on, e.g. 0-29 or 0,10,20 (empty: every frame)")
+    video_source: StringProperty(name="Imported Video", subtype="DIR_PATH",
+                                 description="The multi-view video the training cameras came from (empty: photos); "
+                                             "Train names it in the job instead of the cameras' photos")
     sfm_job: StringProperty(name="SfM Job", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                             description="Job folder of the camera solve")
     camera_collection: PointerProperty(name="Cameras", type=bpy.types.Collection,

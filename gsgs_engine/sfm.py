@@ -40,6 +40,8 @@ TRIANGULATION_STAGES = ("features", "matching", "triangulation")
 # Up to this many photos the matcher compares every pair and the mapper uses the
 # permissive thresholds below; a larger set is a video or a capture walk (sequential).
 SMALL_SET = 30
+# pycolmap's SIFT crashes the process (SIGSEGV) on tiny images: measured 16x12 px crashing, 24x18 running
+MIN_FEATURE_SIDE = 18
 EXHAUSTIVE_LIMIT = 150
 
 ProgressFn = Callable[[str, int, int, str], None]  # (stage, step, total, message)
@@ -241,6 +243,11 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
     pairs = _as_camera_image_pairs(views)
     if len(pairs) < 2:
         return _empty_triangulation(f"{len(pairs)} view(s) given; triangulation needs at least 2")
+    small = min(min(cam.width, cam.height) for cam, _ in pairs)
+    if small < MIN_FEATURE_SIDE:
+        return _empty_triangulation(f"images {small} px on their shorter side are too small for SIFT features "
+                                    f"(at least {MIN_FEATURE_SIDE} px); train at a larger size for a triangulated "
+                                    "initialisation")
     work = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="gsgs_triangulate_"))
     try:
         image_dir = work / "images"

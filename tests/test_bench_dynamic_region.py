@@ -15,7 +15,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.bench.dynamic import parse_camera_counts
 from gsgs_engine.bench.dynamic_region import CHANGE_THRESHOLD, changing_pixels, region_masks
 from gsgs_engine.metrics import masked_psnr, psnr
-from tests.test_io_panoptic import TEST_IDS, write_meta
+from tests.test_io_panoptic import TEST_IDS, write_capture
 
 
 def test_masked_psnr_scores_only_the_region():
@@ -51,10 +51,7 @@ def test_changing_pixels_find_what_moves():
 
 @pytest.fixture
 def pano(tmp_path):
-    root = tmp_path / "pano"
-    write_meta(root, [1, 2, 3, 4, 5, 6, 7], 3, "train_meta.json")
-    write_meta(root, TEST_IDS, 3, "test_meta.json", seg=False)
-    return root
+    return write_capture(tmp_path / "pano", frames=3)
 
 
 def test_region_masks_prefer_the_capture_masks(pano):

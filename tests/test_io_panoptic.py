@@ -50,12 +50,16 @@ def write_meta(root, ids, frames, name, seg=True):
     return meta
 
 
+def write_capture(root, frames: int = 3):
+    """A tiny Panoptic capture: TRAIN_IDS with seg/ masks, TEST_IDS without (as the real one)."""
+    write_meta(root, TRAIN_IDS, frames, "train_meta.json")
+    write_meta(root, TEST_IDS, frames, "test_meta.json", seg=False)
+    return root
+
+
 @pytest.fixture
 def tiny(tmp_path):
-    root = tmp_path / "pano"
-    write_meta(root, TRAIN_IDS, 3, "train_meta.json")
-    write_meta(root, TEST_IDS, 3, "test_meta.json", seg=False)
-    return root
+    return write_capture(tmp_path / "pano")
 
 
 def test_detected_and_selectable(tiny):

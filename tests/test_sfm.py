@@ -148,6 +148,18 @@ def test_triangulation_of_blank_views_returns_empty_arrays(caplog):
     assert "fewer than 2 views have features" in caplog.text
 
 
+def test_triangulation_of_tiny_images_is_skipped_with_the_reason(caplog):
+    """pycolmap's SIFT crashes its process on 16x12 px images: such views give no points and say why."""
+    rng = np.random.default_rng(0)
+    cam = Camera(R=np.eye(3), t=np.zeros(3), fx=16, fy=16, cx=8, cy=6, width=16, height=12)
+    cam2 = cam.with_pose(np.eye(3), np.array([-0.5, 0.0, 0.0]))
+    with caplog.at_level(logging.WARNING, logger="gsgs_engine.sfm"):
+        points, colors = triangulate_known_poses([(cam, rng.random((12, 16, 3), dtype=np.float32)),
+                                                  (cam2, rng.random((12, 16, 3), dtype=np.float32))])
+    assert points.shape == (0, 3) and colors.shape == (0, 3)
+    assert "too small for SIFT features" in caplog.text
+
+
 @pytest.mark.slow
 def test_santorini_registers_all_three_photos_via_the_command(tmp_path):
     photos = shared_scene("photos_santorini")
