@@ -99,3 +99,5 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
             assert np.isfinite(r["psnr"]) and np.isfinite(r["psnr_region"]) and r["lpips"] is None
         assert (out / f"cameras_{n}" / "results.json").is_file()
         assert (out / f"cameras_{n}" / "4d" / "point_cloud.ply").is_file()
+    table = (out / "results.md").read_text()
+    assert table.count("| 2 | ") == 3 and table.count("| 3 | ") == 3 and "dynamic region PSNR" in table

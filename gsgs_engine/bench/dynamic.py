@@ -193,6 +193,24 @@ def format_table(results: dict) -> str:
     return "\n".join(rows)
 
 
+def format_markdown(every: dict) -> str:
+    """One markdown table over the camera counts of a run (results.json's "cameras", or {N: results})."""
+    def num(v, fmt: str) -> str:
+        return format(v, fmt) if v is not None else "-"
+
+    lines = ["| cameras | model | PSNR | dynamic region PSNR | SSIM | LPIPS (VGG) | train s | Gaussians |",
+             "|---|---|---|---|---|---|---|---|"]
+    for n in sorted(every, key=int):
+        results = every[n]
+        best_static = max(results[v]["psnr"] for v in VARIANTS if v != "4d")
+        for name in VARIANTS:
+            r = results[name]
+            psnr = f"**{r['psnr']:.2f}**" if name == "4d" and r["psnr"] > best_static else f"{r['psnr']:.2f}"
+            lines.append(f"| {n} | {name} | {psnr} | {num(r.get('psnr_region'), '.2f')} | {r['ssim']:.3f} | "
+                         f"{num(r.get('lpips'), '.3f')} | {r['train_seconds']:.0f} | {r['num_gaussians']} |")
+    return "\n".join(lines)
+
+
 def parse_camera_counts(text) -> list[int]:
     """--cameras "3,6,9" (or one count) -> [3, 6, 9]; GsgsError naming the bad value."""
     from gsgs_engine import GsgsError
@@ -276,7 +294,9 @@ def run(args) -> int:
         every[str(n)] = results
     if len(counts) > 1:
         write_json_atomic(out / "results.json", {"cameras": every})
-        print(f"[bench dynamic] wrote {out / 'results.json'} ({', '.join(map(str, counts))} cameras)")
+        (out / "results.md").write_text(format_markdown(every) + "\n")
+        print(format_markdown(every))
+        print(f"[bench dynamic] wrote {out / 'results.json'} and results.md ({', '.join(map(str, counts))} cameras)")
     return 0
 
 
@@ -293,5 +313,6 @@ def _rendered_matches(data: Path, ring: int, frames: int, size: int) -> bool:
     return all((data / (f["file_path"] + ".png")).is_file() for f in meta.get("frames", []))
 
 
-__all__ = ["add_arguments", "run", "run_dynamic_bench", "format_table", "render_scene", "parse_camera_counts",
+__all__ = ["add_arguments", "run", "run_dynamic_bench", "format_table", "format_markdown", "render_scene",
+           "parse_camera_counts",
            "load_bench_scene"]
