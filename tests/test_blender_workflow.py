@@ -101,7 +101,7 @@ def test_train_panel_states_the_time_and_unused_path_poses_before_starting(addon
     bpy.ops.gsgs.sample_pseudo_poses()
     labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
     estimate = [t for t in labels if t.startswith("Estimated: ~")]
-    assert estimate and "1000 steps on 200x200 px" in estimate[0], labels  # the balanced preset on lego
+    assert estimate and "1000 steps of the orbit recipe on 200x200 px" in estimate[0], labels  # the balanced preset on lego
     scene.gsgs.generator = "none"
     labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
     assert any("path poses are unused" in t for t in labels)  # no generator: the path is not used
