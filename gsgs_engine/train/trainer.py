@@ -55,6 +55,9 @@ class TrainConfig:
     # view at `coarse_scale` of its size against its area-averaged photo; 0 = full resolution throughout
     coarse_fraction: float = 0.0
     coarse_scale: float = 0.5
+    # the renders' near plane (world units): Gaussians closer to a camera are not drawn. The renderer's
+    # default; the effect plan raises it on an inward-shell rig (gsgs_engine.effect_plan.NEAR_FRACTION)
+    near: float = 0.01
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
 
@@ -121,13 +124,13 @@ def resolve_device(backend: str) -> tuple[torch.device, str]:
 
 
 def render_model(model: GaussianModel, camera: Camera, background: torch.Tensor, backend: str = "auto",
-                 sh_degree: int | None = None):
+                 sh_degree: int | None = None, near: float = 0.01):
     """Render the model from `camera` through gsgs_engine.render.render()."""
     from gsgs_engine.render import render
 
     degree = model.active_sh_degree if sh_degree is None else sh_degree
     return render(model.means, model.quats, model.scales, model.opacities, model.sh(degree), camera,
-                  sh_degree=degree, background=background, backend=backend)
+                  sh_degree=degree, background=background, backend=backend, near=near)
 
 
 def initialise_gaussians(scene, train_views, config: TrainConfig, generator: torch.Generator,
@@ -340,7 +343,7 @@ class Trainer:
         inputs = self.gaussians_for(camera, sh_degree)
         return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                       sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend)
+                      backend=self.config.backend, near=self.config.near)
 
     def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None):
         """A supervised render of this step: the techniques' `render_inputs` hooks may rewrite its inputs."""
@@ -352,7 +355,7 @@ class Trainer:
                 inputs = t.render_inputs(ctx, inputs)
         return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                       sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend)
+                      backend=self.config.backend, near=self.config.near)
 
     # -- the loop -------------------------------------------------------------------------------
     def _next_view(self) -> int:
@@ -610,5 +613,7 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"coarse_scale must be in (0, 1] (got {cfg.coarse_scale})")
     if cfg.mvs_max_side < 16:
         raise GsgsError(f"--mvs-size must be at least 16 pixels (got {cfg.mvs_max_side})")
+    if not (np.isfinite(cfg.near) and cfg.near > 0):
+        raise GsgsError(f"near plane must be a positive distance (got {cfg.near})")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
         raise GsgsError(f"unknown backend {cfg.backend!r}; use auto, reference, cpu or cuda")
