@@ -558,7 +558,7 @@ def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
                  random_background=plan["background"].value == "transparent", init=str(plan["init"].value))
     rig = plan.effects.get("rig")
     if rig is not None and rig.enabled and rig.measured.get("near"):
-        tc.near = float(rig.measured["near"])  # an inward shell's near plane; otherwise the renderer's default
+        tc.novel_view_near = float(rig.measured["near"])  # an inward shell's; otherwise the renderer's default
     pc = replace(prior_config or PriorConfig(prior="none"))
     gen, depth = plan["generator"].value, plan["depth"].value
     if gen:
@@ -626,7 +626,8 @@ def _views_key(views) -> tuple:
 
 def add_effects_argument(parser) -> None:
     parser.add_argument("--effects", default=None, metavar="NAME=VALUE,...",
-                        help="override the effect plan: rig=auto|inward|orbit, time=on|off, sh_degree=auto|0..3, background=transparent|"
+                        help="override the effect plan: rig=auto|inward|orbit, time=on|off, sh_degree=auto|0..3, "
+                             "background=transparent|"
                              "fixed, depth=on|off, pseudo_views=auto|off|N, generator=auto|warp-inpaint|diffusion")
 
 

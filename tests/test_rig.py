@@ -19,6 +19,7 @@ from gsgs_engine.priors.config import PriorConfig
 from gsgs_engine.train.trainer import TrainConfig
 
 SIZE = 24
+DEFAULT_NEAR = TrainConfig().novel_view_near  # the renderer's own (0.01)
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
@@ -103,25 +104,26 @@ def test_the_plan_names_the_rig_and_sets_the_near_plane_only_for_a_shell():
     assert "inward shell" in shell.format() and list(shell.to_dict())[0] == "rig"
     assert "inward-facing shell" in shell["pseudo_views"].reason
     tc, _ = apply_effect_plan(shell, TrainConfig(), PriorConfig(prior="auto"))
-    assert tc.near == pytest.approx(NEAR_FRACTION * 2.75, rel=1e-3)
+    assert tc.novel_view_near == pytest.approx(NEAR_FRACTION * 2.75, rel=1e-3)
     for prior in ("auto", "none"):  # the near plane is geometry, not a prior: plain 3DGS gets it too
         assert _plan(_scene(shell_cameras(), shell_points()), prior=prior)["rig"].enabled
     orbit = _plan(_scene(shell_cameras(), orbit_points()))
     assert not orbit["rig"].enabled and orbit["rig"].value == "object orbit"
     assert "orbiting" in orbit["pseudo_views"].reason
-    assert apply_effect_plan(orbit, TrainConfig(), PriorConfig(prior="auto"))[0].near == TrainConfig().near
+    assert apply_effect_plan(orbit, TrainConfig(), PriorConfig(prior="auto"))[0].novel_view_near == DEFAULT_NEAR
     fwd = _plan(_scene(forward_cameras(), shell_points()))
     assert fwd["rig"].value == "forward-facing" and not fwd["rig"].enabled
-    assert apply_effect_plan(fwd, TrainConfig(), PriorConfig(prior="auto"))[0].near == TrainConfig().near
+    assert apply_effect_plan(fwd, TrainConfig(), PriorConfig(prior="auto"))[0].novel_view_near == DEFAULT_NEAR
 
 
 def test_the_rig_can_be_overridden():
     assert parse_overrides("rig=inward") == {"rig": "inward"}
     forced = _plan(_scene(shell_cameras(), orbit_points()), {"rig": "inward"})
     assert forced["rig"].enabled and forced["rig"].source == "user"
-    assert apply_effect_plan(forced, TrainConfig(), None)[0].near == pytest.approx(NEAR_FRACTION * 2.75, rel=1e-3)
+    assert apply_effect_plan(forced, TrainConfig(), None)[0].novel_view_near == pytest.approx(NEAR_FRACTION * 2.75,
+                                                                                              rel=1e-3)
     off = _plan(_scene(shell_cameras(), shell_points()), {"rig": "orbit"})
-    assert not off["rig"].enabled and apply_effect_plan(off, TrainConfig(), None)[0].near == TrainConfig().near
+    assert not off["rig"].enabled and apply_effect_plan(off, TrainConfig(), None)[0].novel_view_near == DEFAULT_NEAR
     from gsgs_engine import GsgsError
 
     with pytest.raises(GsgsError, match="rig=inward"):
@@ -167,12 +169,12 @@ def test_a_splat_inside_the_near_plane_is_not_drawn_and_gradients_stay_finite(ba
     assert leaves[0].grad[0].abs().sum() == 0 and leaves[0].grad[1].abs().sum() > 0  # culled: no gradient
 
 
-def test_the_trainer_renders_with_its_configured_near_plane(monkeypatch):
+def test_the_trainer_draws_novel_views_with_the_near_plane_and_trains_with_the_default(monkeypatch):
     import gsgs_engine.render as render_module
     from gsgs_engine.train.trainer import Trainer, validate_config
 
     with pytest.raises(Exception, match="near"):
-        validate_config(TrainConfig(near=0.0))
+        validate_config(TrainConfig(novel_view_near=0.0))
     cams = shell_cameras(4)
     img = np.full((SIZE, SIZE, 3), 0.5, np.float32)
     views = [View(camera=c, image_path=None, loader=lambda: img) for c in cams]
@@ -187,14 +189,16 @@ def test_the_trainer_renders_with_its_configured_near_plane(monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(render_module, "render", spy)
-    tr = Trainer(scene, TrainConfig(iters=2, init="points", sh_degree=0, backend="reference", near=0.3,
+    tr = Trainer(scene, TrainConfig(iters=2, init="points", sh_degree=0, backend="reference", novel_view_near=0.3,
                                     checkpoint_every=0), progress=None, log=lambda m: None)
     tr.setup()
     tr.train()
+    assert seen and all(n is None for n in seen)  # training renders: the renderer's default
+    assert torch.isfinite(tr.model.means).all()
+    seen.clear()
     with torch.no_grad():
         out = tr.render(cams[3])
-    assert torch.isfinite(out.color).all() and torch.isfinite(tr.model.means).all()
-    assert seen and all(n == 0.3 for n in seen)
+    assert torch.isfinite(out.color).all() and seen == [0.3]
 
 
 # -- real data ------------------------------------------------------------------------------------
