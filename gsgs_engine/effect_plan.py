@@ -76,7 +76,7 @@ SHELL_REACH = 0.8
 SHELL_MIN_SHARE = 0.2
 # An inward shell's near plane: NEAR_FRACTION x the shell radius (the cameras' median distance from the
 # focus), so it scales with the rig, whatever its units; nothing the cameras film lies that close to
-# another camera of the shell but its own wall.
+# another camera of the shell but its own wall. It applies to novel views only (TrainConfig.novel_view_near).
 NEAR_FRACTION = 0.1
 RIGS = ("forward-facing", "object orbit", "inward shell")
 SPARSE_DEPTH_MEASURED = ("measured to lower test PSNR (1000 steps, CPU: lego_200 8 views -1.57 dB depth-only, "
@@ -222,8 +222,9 @@ def _rig_effect(layout: dict, choice: str) -> Effect:
     if rig == "inward shell":
         why = (f"{layout['points_at_shell']:.0%} of {layout['points']} SfM points lie out at the cameras' shell "
                f"(>= {SHELL_REACH} x radius {layout['shell_radius']:.3g} from the focus; >= {SHELL_MIN_SHARE:.0%} "
-               f"makes a shell): the walls the cameras hang on; near plane {layout['near']:g} "
-               f"({NEAR_FRACTION} x the radius) so a camera does not see the splats of its own wall")
+               f"makes a shell): the walls the cameras hang on; novel views (evaluation, pseudo views) drawn with a "
+               f"near plane of {layout['near']:g} ({NEAR_FRACTION} x the radius), so a camera on the shell does not "
+               "draw the wall reconstructed around it")
     elif rig == "forward-facing":
         why = "the optical axes do not meet: " + layout["focus"]
     elif "points_at_shell" in layout:
