@@ -1,8 +1,10 @@
 """The effect plan: inspect a scene before training and model only the effects it calls for.
 
-Six effects, each decided from the data (or set by the user) with its measurement and reason:
-time (4D), view-dependent colour (SH degree), background (from alpha), depth regularisation,
-pseudo views, and the generator. A disabled effect is never set up, so it costs nothing.
+Each effect is decided from the data (or set by the user) with its measurement and reason:
+the rig (forward-facing, object orbit or inward shell, and the near plane it needs), time (4D),
+view-dependent colour (SH degree), background (from alpha), depth regularisation, pseudo views,
+the generator, the weights-free techniques and the initialisation. A disabled effect is never set
+up, so it costs nothing.
 The plan is printed, saved as metrics.json["plan"]["effects"], and overridable
 (`--effects sh_degree=0,pseudo_views=off`).
 """
@@ -19,7 +21,7 @@ import numpy as np
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import focus_point
 
-EFFECTS = ("time", "sh_degree", "background", "depth", "pseudo_views", "generator", "techniques", "init")
+EFFECTS = ("rig", "time", "sh_degree", "background", "depth", "pseudo_views", "generator", "techniques", "init")
 
 # -- documented thresholds ---------------------------------------------------------------------
 # Pseudo views: sparse-view benchmarks train on 3-9 views (LLFF 3, DTU 3, NeRF-synthetic 8);
@@ -57,6 +59,26 @@ MVS_MEASURED = ("dense MVS init measured with the techniques: lego_200 23.16 -> 
 # 25-33 deg camera gaps, are worse than the render (1000 steps, CPU, one seed; with the techniques on):
 WARP_MEASURED = ("warp-inpaint measured with the techniques: llff_flower (forward-facing, 3 views, half "
                  "resolution) 18.27 -> 19.71 dB, lego_200 (orbit, 8 views) 23.16 -> 21.83 dB")
+# The rig. A converging rig (the optical axes meet) is an object orbit where the scene lies well inside the
+# cameras' shell (NeRF-synthetic: the object), an inward shell where a real share of it reaches the shell:
+# a dome or studio whose cameras hang on the walls they film (CMU Panoptic). There the walls, filmed by
+# the cameras opposite, are reconstructed where the other cameras stand, and a novel camera on the shell
+# sits inside them: with the renderer's default near plane (0.01) the splats in front of its lens fill
+# the image (measured, panoptic_basketball frame 0, 9 cameras, plain 1000 steps: test cameras 0 and 15
+# rendered black, 6.1 and 5.95 dB; the same model drawn with a near plane of 0.1 / 0.3 / 1.0 units gives
+# 16.0 / 16.6 / 15.5 dB and 15.0 / 15.0 / 15.0 dB over the four test views, from 9.99).
+# A point reaches the shell beyond SHELL_REACH x the cameras' median distance from the focus;
+# the rig is a shell when at least SHELL_MIN_SHARE of the training views' SfM points do. Measured (frame 0 for
+# Panoptic): panoptic_basketball 9 cameras 51% of 210 points, 6 cameras 63% of 71 (3 cameras triangulate no
+# point: an orbit, as before); lego_200 8 views 0.6% of 170, blender_lego 8 views 0% of 329, blender_chair
+# 8 views 0.2% of 640 (their points lie within 0.32 x the radius); LLFF is forward-facing (axes do not meet).
+SHELL_REACH = 0.8
+SHELL_MIN_SHARE = 0.2
+# An inward shell's near plane: NEAR_FRACTION x the shell radius (the cameras' median distance from the
+# focus), so it scales with the rig, whatever its units; nothing the cameras film lies that close to
+# another camera of the shell but its own wall. It applies to novel views only (TrainConfig.novel_view_near).
+NEAR_FRACTION = 0.1
+RIGS = ("forward-facing", "object orbit", "inward shell")
 SPARSE_DEPTH_MEASURED = ("measured to lower test PSNR (1000 steps, CPU: lego_200 8 views -1.57 dB depth-only, "
                          "and a further -1.01 dB on top of warp-inpaint; llff_flower 3 views -0.15 dB depth-only)")
 
@@ -124,7 +146,7 @@ def check_overrides(overrides: dict) -> None:
     allowed = {
         "time": ("auto",) + _ON + _OFF, "sh_degree": ("auto", 0, 1, 2, 3),
         "background": ("auto", "transparent", "fixed"), "depth": ("auto",) + _ON + _OFF,
-        "generator": ("auto", "warp-inpaint", "warp", "diffusion"),
+        "generator": ("auto", "warp-inpaint", "warp", "diffusion"), "rig": ("auto", "inward", "orbit"),
     }
     for key, value in overrides.items():
         if key not in EFFECTS:
@@ -153,6 +175,65 @@ def coverage(cameras, near: float | None = None, far: float | None = None) -> di
     nn = ang.min(axis=1)
     return {"views": n, "nn_gap_median_deg": round(float(np.median(nn)), 2),
             "nn_gap_max_deg": round(float(nn.max()), 2), "focus": how}
+
+
+def rig_layout(cameras, points=None, near: float | None = None, far: float | None = None) -> dict:
+    """What rig the cameras form: forward-facing, object orbit or inward shell (see SHELL_REACH), measured.
+
+    `points` (N x 3, e.g. the training views' SfM points) tell an orbit from a shell: on a shell a
+    share of them lies out at the cameras' distance from the focus. Without enough points a
+    converging rig counts as an orbit (what it was before shells were told apart). "near" is
+    the near plane a shell's renders need (None: the renderer's default).
+    """
+    if len(cameras) < 2:
+        return {"rig": "object orbit", "focus": "one view", "near": None}
+    if near and far:
+        cameras = [replace(c, near=near, far=far) for c in cameras]
+    focus, how = focus_point(cameras)
+    if how != "optical axes intersection":
+        return {"rig": "forward-facing", "focus": how, "near": None}
+    radius = float(np.median([np.linalg.norm(c.center - focus) for c in cameras]))
+    out = {"rig": "object orbit", "focus": how, "shell_radius": round(radius, 4), "near": None}
+    pts = np.asarray(points if points is not None else np.zeros((0, 3)), dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    out["points"] = int(len(pts))
+    if len(pts) < MIN_MEASURED_POINTS:
+        return out
+    share = float(np.mean(np.linalg.norm(pts - focus, axis=1) >= SHELL_REACH * radius))
+    out["points_at_shell"] = round(share, 4)
+    if share >= SHELL_MIN_SHARE:
+        out.update(rig="inward shell", near=round(NEAR_FRACTION * radius, 6))
+    return out
+
+
+def _rig_effect(layout: dict, choice: str) -> Effect:
+    """The plan's "rig" effect: on where an inward shell's near plane is in force."""
+    if choice == "inward":
+        if layout.get("shell_radius") is None:
+            raise GsgsError("--effects rig=inward: the training cameras do not converge on a point (forward-facing "
+                            "or one view), so there is no shell to derive a near plane from")
+        near = round(NEAR_FRACTION * layout["shell_radius"], 6)
+        return Effect("rig", True, "inward shell", f"--effects rig=inward: near plane {near:g}", "user",
+                      {**layout, "rig": "inward shell", "near": near})
+    if choice == "orbit":
+        return Effect("rig", False, layout["rig"], "--effects rig=orbit: the renderer's default near plane", "user",
+                      {**layout, "near": None})
+    rig = layout["rig"]
+    if rig == "inward shell":
+        why = (f"{layout['points_at_shell']:.0%} of {layout['points']} SfM points lie out at the cameras' shell "
+               f"(>= {SHELL_REACH} x radius {layout['shell_radius']:.3g} from the focus; >= {SHELL_MIN_SHARE:.0%} "
+               f"makes a shell): the walls the cameras hang on; novel views (evaluation, pseudo views) drawn with a "
+               f"near plane of {layout['near']:g} ({NEAR_FRACTION} x the radius), so a camera on the shell does not "
+               "draw the wall reconstructed around it")
+    elif rig == "forward-facing":
+        why = "the optical axes do not meet: " + layout["focus"]
+    elif "points_at_shell" in layout:
+        why = (f"the optical axes meet and {layout['points_at_shell']:.0%} of {layout['points']} SfM points lie out "
+               f"at the cameras' shell (< {SHELL_MIN_SHARE:.0%}): the scene sits inside the rig")
+    else:
+        why = (f"the optical axes meet; {layout.get('points', 0)} SfM points (< {MIN_MEASURED_POINTS}) cannot tell a "
+               "shell from an orbit, so an orbit")
+    return Effect("rig", rig == "inward shell", rig, why, measured=layout)
 
 
 def _patch_mean(img: np.ndarray, u: float, v: float) -> np.ndarray | None:
@@ -310,7 +391,11 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
     # SfM-point depth hurt in every lego_200 run (llff_flower: -0.15 dB alone, +0.26 on top of warp),
     # so `auto` does not pick it; the depth-only prior, --depth-source sparse or --effects depth=on do
     sparse_asked = requested == "depth" or prior_config.depth_source == "sparse" or depth_want is True
-    needs_points = (sh_auto or (depth_possible and depth_want is not False and not depth_model))
+    rig_choice = overrides.get("rig", "auto")
+    # an auto rig needs points only where the cameras converge (an orbit or a shell; forward-facing is geometry)
+    converging = len(cams) >= 2 and focus_point(cams)[1] == "optical axes intersection"
+    needs_points = (sh_auto or (depth_possible and depth_want is not False and not depth_model)
+                    or (rig_choice == "auto" and converging))
     # the dense stereo init triangulates the same views for its depth ranges: it reuses this triangulation too
     if needs_points and triangulation is None and train_config.init in ("auto", "sfm", "mvs") and len(views) >= 2:
         from gsgs_engine.sfm import triangulate_with_known_poses
@@ -322,6 +407,10 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
         num_points = int(len(triangulation.points))
     elif scene.points is not None:
         num_points = int(len(scene.points))
+
+    # the rig: forward-facing, object orbit or inward shell (whose renders need a near plane)
+    rig_points = triangulation.points if triangulation is not None else scene.points
+    effects["rig"] = _rig_effect(rig_layout(cams, rig_points, scene.near, scene.far), rig_choice)
 
     # view-dependent colour
     cap = identifiable_sh_degree(len(views))
@@ -408,7 +497,8 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
         effects["pseudo_views"] = Effect("pseudo_views", True, prior_config.num_pseudo,
                                          f"--prior {requested} asks for them", "user", cov)
     elif sparse and cov.get("focus") == "optical axes intersection" and not diffusion_configured(prior_config):
-        effects["pseudo_views"] = Effect("pseudo_views", False, 0, "sparse orbiting rig (" + sparse_why + ") and no "
+        rig_name = "inward-facing shell" if effects["rig"].value == "inward shell" else "orbiting"
+        effects["pseudo_views"] = Effect("pseudo_views", False, 0, f"sparse {rig_name} rig (" + sparse_why + ") and no "
                                          "diffusion weights: " + WARP_MEASURED + "; --prior warp forces them",
                                          measured=cov)
     else:
@@ -458,7 +548,7 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
     else:
         effects["init"] = Effect("init", False, "auto", "SfM points of the training views (else the source's "
                                  "points, else random)")
-    return EffectPlan(effects, time.perf_counter() - t_start, triangulation)
+    return EffectPlan({name: effects[name] for name in EFFECTS}, time.perf_counter() - t_start, triangulation)
 
 
 def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
@@ -467,6 +557,9 @@ def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
 
     tc = replace(train_config, sh_degree=int(plan["sh_degree"].value),
                  random_background=plan["background"].value == "transparent", init=str(plan["init"].value))
+    rig = plan.effects.get("rig")
+    if rig is not None and rig.enabled and rig.measured.get("near"):
+        tc.novel_view_near = float(rig.measured["near"])  # an inward shell's; otherwise the renderer's default
     pc = replace(prior_config or PriorConfig(prior="none"))
     gen, depth = plan["generator"].value, plan["depth"].value
     if gen:
@@ -534,7 +627,8 @@ def _views_key(views) -> tuple:
 
 def add_effects_argument(parser) -> None:
     parser.add_argument("--effects", default=None, metavar="NAME=VALUE,...",
-                        help="override the effect plan: time=on|off, sh_degree=auto|0..3, background=transparent|"
+                        help="override the effect plan: rig=auto|inward|orbit, time=on|off, sh_degree=auto|0..3, "
+                             "background=transparent|"
                              "fixed, depth=on|off, pseudo_views=auto|off|N, generator=auto|warp-inpaint|diffusion")
 
 

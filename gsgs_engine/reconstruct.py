@@ -107,6 +107,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
         "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
         "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "world_scale": scene.world_scale,
+        "novel_view_near": trainer.config.novel_view_near,
         "lambda_dssim": trainer.config.lambda_dssim,
         "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
         "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "

@@ -278,14 +278,17 @@ def _train(tiny, out, *extra):
 def test_train_one_frame_static_then_eval(tiny, tmp_path):
     from gsgs_engine.cli import main
 
-    metrics = _train(tiny, tmp_path / "one", "--train-views", "3", "--frames", "1")
+    metrics = _train(tiny, tmp_path / "one", "--train-views", "3", "--frames", "1", "--effects", "rig=inward")
     plan = metrics["plan"]
     assert plan["effects"]["time"]["enabled"] is False and plan["frames"] == "1"
+    assert plan["effects"]["rig"]["value"] == "inward shell" and plan["novel_view_near"] > 0.01  # the dome's
     assert plan["num_train_views"] == 3 and plan["num_test_views"] == 2
     assert sorted(v["name"] for v in metrics["per_view"]) == ["0/000001", "8/000001"]
-    # eval reads the frames the run recorded and reproduces its test PSNR
+    # eval reads the frames and the near plane the run recorded and reproduces its test PSNR
     assert main(["eval", str(tmp_path / "one"), "--data", str(tiny)]) == 0
-    assert json.loads((tmp_path / "one" / "eval.json").read_text())["psnr"] == pytest.approx(metrics["psnr"], abs=1e-4)
+    evaluated = json.loads((tmp_path / "one" / "eval.json").read_text())
+    assert evaluated["psnr"] == pytest.approx(metrics["psnr"], abs=1e-4)
+    assert evaluated["near"] == plan["novel_view_near"]
 
 
 @pytest.mark.slow

@@ -85,10 +85,12 @@ def run(args: argparse.Namespace) -> int:
 
     model = GaussianModel.from_ply(ply_to_internal(splats, scene.world_scale)).to(device)
     bg = torch.tensor(background, dtype=torch.float32, device=device)
-    result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend), views,
+    near = float(recorded.get("novel_view_near", 0.01))  # the run's (an inward-shell rig's; else the default)
+    result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend, near=near), views,
                             renders_dir=Path(args.renders) if args.renders else None)
     result.update({"ply": str(ply_path), "data": str(args.data), "split": args.split, "backend": args.backend,
-                   "resolution_scale": scale, "background": list(background), "num_gaussians": model.num_gaussians})
+                   "resolution_scale": scale, "background": list(background), "num_gaussians": model.num_gaussians,
+                   "near": near})
     if not all(math.isfinite(result[k]) for k in ("psnr", "ssim")):
         raise GsgsError(f"{ply_path}: evaluation gave PSNR {result['psnr']} / SSIM {result['ssim']} (not finite); "
                         "the renders hold NaN, so the result is damaged: retrain it")
