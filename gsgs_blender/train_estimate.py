@@ -1,7 +1,8 @@
 """A training time estimate the Train panel states before a job starts.
 
 Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine with this
-build (seed 0, 1000 steps, 2026-11-25, one after another with nothing else running), one reference per
+build (seed 0, 1000 steps, 2026-11-25, one after another; the helper session's runs paused, this session's
+short unit tests beside some of them), one reference per
 recipe the engine can run, because they differ more than any single factor allows:
   - plain 3DGS: LLFF flower, 3 views at 504x378, 271 s (157,698 Gaussians: without the count control
     real photos grow them unchecked);
