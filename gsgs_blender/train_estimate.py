@@ -4,7 +4,7 @@ Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU m
 build (seed 0, 1000 steps, 2026-11-25, one after another; the helper session's runs paused, this session's
 short unit tests beside some of them), one reference per
 recipe the engine can run, because they differ more than any single factor allows:
-  - plain 3DGS: LLFF flower, 3 views at 504x378, 271 s (157,698 Gaussians: without the count control
+  - plain 3DGS: LLFF flower, 3 views at 504x378, 271 s (157,697 Gaussians: without the count control
     real photos grow them unchecked);
   - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
     dropout, binocular shift, no pseudo views): NeRF-synthetic lego, 8 views at 400x400, 201 s;
