@@ -60,17 +60,16 @@ def import_video(scene, folder: str, train_cameras: int, frames: str) -> list:
     for obj in [o for o in bpy.data.objects if PROP_FROM_VIDEO in o]:  # an earlier import's cameras
         bpy.data.objects.remove(obj, do_unlink=True)
     coll = _fresh_collection(scene, VIDEO_COLLECTION)
+    cams = [Camera.from_dict(d) for d in camera_dicts_to_world([v.camera.to_dict() for v in views], video.world_scale)]
     objects = []
-    for v in views:
-        cam = Camera.from_dict(camera_dicts_to_world([v.camera.to_dict()], video.world_scale)[0])
+    for v, cam in zip(views, cams):
         name = f"cam_{v.camera.extra.get('camera_index', len(objects))}"
         obj = camera_convert.new_camera_object(cam, coll, scene, name=name)
         obj[PROP_FROM_VIDEO] = str(folder)
         if v.image_path is not None and Path(v.image_path).is_file():
             set_background_photo(obj, str(v.image_path))
         objects.append(obj)
-    camera_convert.apply_camera_to_object(Camera.from_dict(camera_dicts_to_world(
-        [views[0].camera.to_dict()], video.world_scale)[0]), objects[0], scene, set_scene_frame=True)
+    camera_convert.apply_camera_to_object(cams[0], objects[0], scene, set_scene_frame=True)
     scene.frame_start, scene.frame_end = frame_ids[0], frame_ids[-1]
     scene.frame_set(frame_ids[0])
     scene.camera = objects[0]

@@ -85,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
 
     model = GaussianModel.from_ply(ply_to_internal(splats, scene.world_scale)).to(device)
     bg = torch.tensor(background, dtype=torch.float32, device=device)
-    near = float(recorded.get("novel_view_near", 0.01))  # the run's (an inward-shell rig's; else the default)
+    from gsgs_engine.render.project import DEFAULT_NEAR
+
+    near = float(recorded.get("novel_view_near", DEFAULT_NEAR))  # the run's (an inward-shell rig's; else the default)
     result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend, near=near), views,
                             renders_dir=Path(args.renders) if args.renders else None)
     result.update({"ply": str(ply_path), "data": str(args.data), "split": args.split, "backend": args.backend,

@@ -17,7 +17,7 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
-from gsgs_engine.render.project import project_gaussians
+from gsgs_engine.render.project import DEFAULT_NEAR, project_gaussians
 from gsgs_engine.render.reference import rasterize_reference
 from gsgs_engine.render.sh import num_sh_bases
 
@@ -151,7 +151,7 @@ def _check_inputs(means, quats, scales, opacities, sh, sh_degree: int, camera: C
 
 def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
            sh: torch.Tensor, camera: Camera, sh_degree: int, background, backend: str = "auto",
-           near: float = 0.01, far: float = 1e10) -> RenderOutput:
+           near: float = DEFAULT_NEAR, far: float = 1e10) -> RenderOutput:
     """Render Gaussians (means, quats wxyz, linear scales, opacities in [0, 1], SH [N, K, 3]).
 
     Differentiable w.r.t. every Gaussian input. float16 / bfloat16 inputs are upcast to float32;

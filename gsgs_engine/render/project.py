@@ -19,6 +19,7 @@ LOW_PASS_DILATION = 0.3  # pixels^2 added to the 2D covariance (3DGS anti-aliasi
 FRUSTUM_SLACK = 1.3  # tx/tz, ty/tz clamped to 1.3x the image half-extent, as 3DGS
 QUAT_EPS = 1e-12
 MAX_RADIUS = 2 ** 30  # int32-safe; far larger than any image
+DEFAULT_NEAR = 0.01  # Gaussians nearer the camera than this (view-space z) are not drawn
 
 
 @dataclass
@@ -98,7 +99,7 @@ def view_colors(means: torch.Tensor, sh: torch.Tensor, sh_degree: int, camera_ce
 
 
 def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, camera: Camera,
-                      sh: torch.Tensor | None = None, sh_degree: int = 0, near: float = 0.01,
+                      sh: torch.Tensor | None = None, sh_degree: int = 0, near: float = DEFAULT_NEAR,
                       far: float = 1e10) -> Projection:
     """Project N Gaussians into `camera`. Inputs share one float dtype (float32 or float64)."""
     dtype, device = means.dtype, means.device

@@ -16,7 +16,7 @@ import torch
 
 from gsgs_engine.cameras import Camera
 from gsgs_engine.render import cpu_backend
-from gsgs_engine.render.project import Projection
+from gsgs_engine.render.project import DEFAULT_NEAR, Projection
 
 
 def camera_vector(camera: Camera) -> torch.Tensor:
@@ -59,7 +59,7 @@ def _function():
 
 
 def project_gaussians_cpu(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, camera: Camera,
-                          sh: torch.Tensor, sh_degree: int = 0, near: float = 0.01, far: float = 1e10) -> Projection:
+                          sh: torch.Tensor, sh_degree: int = 0, near: float = DEFAULT_NEAR, far: float = 1e10) -> Projection:
     """`project_gaussians` (with SH colours) in the compiled kernel; CPU float32 or float64 tensors."""
     intrinsics = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), int(camera.width),
                   int(camera.height), float(near), float(far))

@@ -23,6 +23,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.init.mvs import MVSConfig
 from gsgs_engine.cameras import Camera
 from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
+from gsgs_engine.render.project import DEFAULT_NEAR
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_prune, reset_opacity
 from gsgs_engine.train.losses import photometric_terms, total_loss
@@ -62,7 +63,7 @@ class TrainConfig:
     # default: a training camera's photo already fits whatever lies before it (measured, panoptic 9
     # cameras, 1000 steps: the near plane in training too gave 14.89 / 14.17 dB plain / auto, against
     # 15.04 / 15.34 with it at evaluation only)
-    novel_view_near: float = 0.01
+    novel_view_near: float = DEFAULT_NEAR
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
 
@@ -129,7 +130,7 @@ def resolve_device(backend: str) -> tuple[torch.device, str]:
 
 
 def render_model(model: GaussianModel, camera: Camera, background: torch.Tensor, backend: str = "auto",
-                 sh_degree: int | None = None, near: float = 0.01):
+                 sh_degree: int | None = None, near: float = DEFAULT_NEAR):
     """Render the model from `camera` through gsgs_engine.render.render()."""
     from gsgs_engine.render import render
 
