@@ -73,6 +73,36 @@ def test_non_loopback_address_is_refused_before_anything_is_read_or_sent(tmp_pat
     assert not (job / "status.json").exists()
 
 
+class _FlakyRay:
+    """Stands in for the `ray` module's init: the head's per-driver server dies `fails` times, then starts."""
+
+    def __init__(self, fails: int, message: str = "Starting Ray client server failed. See x.err"):
+        self.fails, self.message, self.calls = fails, message, 0
+
+    def init(self, **_):
+        self.calls += 1
+        if self.calls <= self.fails:
+            raise RuntimeError(f"Initialization failure from server:\n{self.message}")
+
+
+def test_a_ray_client_server_that_dies_while_starting_is_retried(capsys):
+    from gsgs_engine.cluster.remote import _init_with_client_retries
+
+    flaky = _FlakyRay(fails=2)
+    _init_with_client_retries(flaky, "ray://127.0.0.1:10001", None, attempts=3, wait_s=0)
+    assert flaky.calls == 3 and capsys.readouterr().err.count("failed to start (attempt") == 2
+    with pytest.raises(RuntimeError, match="client server failed"):  # the last attempt's failure is raised
+        _init_with_client_retries(_FlakyRay(fails=3), "ray://127.0.0.1:10001", None, attempts=3, wait_s=0)
+    other = _FlakyRay(fails=1, message="Connection refused")  # not a server start: no retry
+    with pytest.raises(RuntimeError, match="refused"):
+        _init_with_client_retries(other, "ray://127.0.0.1:10001", None, attempts=3, wait_s=0)
+    assert other.calls == 1
+    direct = _FlakyRay(fails=1)  # HOST:PORT (no Ray Client server) is not retried either
+    with pytest.raises(RuntimeError):
+        _init_with_client_retries(direct, "127.0.0.1:6380", None, attempts=3, wait_s=0)
+    assert direct.calls == 1
+
+
 def test_missing_ray_says_how_to_install(monkeypatch):
     from gsgs_engine.cluster import remote
 
@@ -160,6 +190,7 @@ def ray_cluster(tmp_path_factory):
             pytest.fail(f"the local Ray cluster did not start: {(temp / 'cluster.log').read_text()[-2000:]}")
         info = json.loads(line)
         assert info["address"].startswith("127.0.0.1:"), info  # nothing on the machine's network address
+        info["logs"] = temp / "r" / "session_latest" / "logs"
         yield info
     finally:
         proc.send_signal(signal.SIGTERM)  # the harness shuts down every process of the cluster
@@ -207,8 +238,14 @@ def test_train_on_the_cluster_equals_the_local_run(ray_cluster, tmp_path):
     assert sorted(p.name for p in (tmp_path / "remote" / "renders").iterdir()) == \
         sorted(p.name for p in (tmp_path / "local" / "renders").iterdir())
     client = gsgs("train", *common, "--ray", ray_cluster["client_address"], "--out", tmp_path / "client")
-    assert client.returncode == 0, client.stderr[-3000:]  # Ray Client (ray://HOST:PORT) works the same
+    assert client.returncode == 0, client.stderr[-3000:] + _client_server_logs(ray_cluster["logs"])  # ray:// too
     assert (tmp_path / "client" / "point_cloud.ply").read_bytes() == (tmp_path / "local" / "point_cloud.ply").read_bytes()
+
+
+def _client_server_logs(logs: Path) -> str:
+    """The head's per-driver Ray Client server logs, for a failure message."""
+    return "".join(f"\n--- {p.name}:\n{p.read_text(errors='replace')[-1500:]}"
+                   for p in sorted(logs.glob("ray_client_server_*.err")))
 
 
 def _wait_for(predicate, timeout: float, what: str) -> None:

@@ -28,6 +28,12 @@ INSTALL_HINT = "install Ray with `pip install 'gsgs[cluster]'` (or `pip install 
 POLL_S = 1.0
 CANCEL_WAIT_S = 120.0  # a cancelled engine finishes its step and checkpoints; give it this long
 _CONNECT_LOCK = threading.Lock()
+# Ray Client (ray://) starts one server process per connecting driver on the head; when that process dies
+# while starting (its log is ray_client_server_<port>.err on the head) the head answers "Starting Ray client
+# server failed". The next connection gets a new process on the next port, so the driver tries again.
+CLIENT_START_ATTEMPTS = 3
+CLIENT_START_WAIT_S = 2.0
+_CLIENT_START_FAILED = ("Starting Ray client server failed", "Proxy failed to Connect to backend")
 
 
 def import_ray():
@@ -56,15 +62,37 @@ def connect(address: str):
             on_main = threading.current_thread() is threading.main_thread()
             previous = signal.getsignal(signal.SIGTERM) if on_main else None
             try:
-                ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level="ERROR",
-                         configure_logging=False)
+                _init_with_client_retries(ray, address, env)
             except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise GsgsError(f"--ray {address}: cannot connect to the Ray cluster ({exc}); start one with "
+                hint = ("; the head's Ray Client server did not start: see ray_client_server_*.err in its "
+                        "session logs (/tmp/ray/session_latest/logs)" if _client_start_failed(exc) else "")
+                raise GsgsError(f"--ray {address}: cannot connect to the Ray cluster ({exc}){hint}; start one with "
                                 "`ray start --head --port 6380` and pass --ray HOST:6380 (docs/cluster.md)") from exc
             finally:
                 if on_main and previous is not None:
                     signal.signal(signal.SIGTERM, previous)
     return ray
+
+
+def _client_start_failed(exc: BaseException) -> bool:
+    return any(text in str(exc) for text in _CLIENT_START_FAILED)
+
+
+def _init_with_client_retries(ray, address: str, env, attempts: int = CLIENT_START_ATTEMPTS,
+                              wait_s: float = CLIENT_START_WAIT_S) -> None:
+    """ray.init(address); for ray:// only, a server process that died while starting is retried (a new one
+    is started per connection), saying so; any other failure, or the last attempt's, is raised."""
+    for attempt in range(1, attempts + 1):
+        try:
+            ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level="ERROR",
+                     configure_logging=False)
+            return
+        except (ConnectionError, RuntimeError) as exc:
+            if not (address.startswith("ray://") and _client_start_failed(exc)) or attempt == attempts:
+                raise
+            print(f"gsgs: the Ray Client server at {address} failed to start (attempt {attempt}/{attempts}); "
+                  f"trying again in {wait_s * attempt:.0f} s", file=sys.stderr, flush=True)
+            time.sleep(wait_s * attempt)
 
 
 def actor_class(ray):
