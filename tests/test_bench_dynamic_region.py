@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from argparse import Namespace
 
 import numpy as np
@@ -15,6 +16,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.bench.dynamic import parse_camera_counts
 from gsgs_engine.bench.dynamic_region import CHANGE_THRESHOLD, changing_pixels, region_masks
 from gsgs_engine.metrics import masked_psnr, psnr
+from gsgs_engine.render.project import DEFAULT_NEAR
 from tests.test_io_panoptic import TEST_IDS, write_capture
 
 
@@ -84,7 +86,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
     out = tmp_path / "bench"
     args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
                      per_frame_iters=3, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
-                     threads=0, resolution_scale=1.0, no_lpips=True)
+                     threads=0, resolution_scale=1.0, no_lpips=True, rig="auto")
     assert run(args) == 0
     every = json.loads((out / "results.json").read_text())["cameras"]
     assert sorted(every) == ["2", "3"]
@@ -93,6 +95,8 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         assert setup["format"] == "panoptic" and len(setup["train_cameras"]) == int(n)
         assert setup["test_cameras"] == TEST_IDS and setup["frames"] == 3 and setup["lpips"] == "none"
         assert "change over time" in results["region"]
+        assert results["rig"]["rig"] in ("object orbit", "forward-facing", "inward shell")
+        assert results["novel_view_near"] == (results["rig"]["near"] or DEFAULT_NEAR)
         for name in ("4d", "static_all", "static_per_frame"):
             r = results[name]
             assert len(r["per_view"]) == 6  # two test cameras x three frames
@@ -101,3 +105,19 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         assert (out / f"cameras_{n}" / "4d" / "point_cloud.ply").is_file()
     table = (out / "results.md").read_text()
     assert table.count("| 2 | ") == 3 and table.count("| 3 | ") == 3 and "dynamic region PSNR" in table
+
+
+PANOPTIC = Path(__file__).resolve().parents[2] / "shared" / "data" / "panoptic_basketball"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not PANOPTIC.is_dir(), reason=f"{PANOPTIC} absent (../shared/data)")
+def test_the_bench_reads_the_panoptic_dome_as_a_shell_and_draws_test_views_with_its_near_plane():
+    """As gsgs train does (tests/test_rig.py): 9 cameras of the dome are an inward shell, whose test cameras sit in
+    the wall the training cameras see; the bench records the rig and the near plane its test views are drawn with."""
+    from gsgs_engine.bench.dynamic import bench_rig, load_bench_scene
+
+    scene = load_bench_scene(PANOPTIC, 9, 1, 0.5)
+    layout = bench_rig(scene, log=lambda m: None)
+    assert layout["rig"] == "inward shell" and layout["points_at_shell"] >= 0.2
+    assert 0.1 < layout["near"] < 1.0  # 0.1 x the dome's radius (about 2.7 units)

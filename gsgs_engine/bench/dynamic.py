@@ -52,6 +52,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sh-degree", type=int, default=0)
     parser.add_argument("--backend", default="auto", choices=("auto", "reference", "cpu", "cuda"))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rig", default="auto", choices=("auto", "off"),
+                        help="auto (default): read the rig from the first frame's training views as gsgs train does, "
+                             "and draw the test views of an inward shell with its near plane; off: the renderer's "
+                             "default near plane (the bench before the rig was read)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
 
@@ -117,9 +121,25 @@ def _warm_up(backend: str, camera) -> None:
            torch.full((1, 3), 0.1), torch.ones(1), torch.zeros(1, 1, 3), camera, 0, torch.ones(3), backend=backend)
 
 
+def bench_rig(scene, log=print) -> dict:
+    """The rig of the training cameras, as the effect plan reads it (gsgs train): their first frame's views
+    triangulated with the known poses tell an object orbit from an inward shell, whose novel views (here the
+    test cameras) are rendered with the shell's near plane (docs/inward_rigs.md)."""
+    from gsgs_engine.effect_plan import rig_layout
+    from gsgs_engine.sfm import triangulate_with_known_poses
+    from gsgs_engine.train.dynamic import views_by_frame
+
+    first = next(iter(views_by_frame(scene.train).values()))
+    points = triangulate_with_known_poses(first).points if len(first) >= 2 else None
+    layout = rig_layout([v.camera for v in first], points, scene.near, scene.far)
+    log(f"[bench dynamic] rig: {layout['rig']} ({layout.get('points', 0)} points of the first frame"
+        + (f"; novel views drawn with a near plane of {layout['near']:.3g}" if layout.get("near") else "") + ")")
+    return layout
+
+
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
-                      log=print, lpips: bool = True) -> dict:
+                      log=print, lpips: bool = True, rig: str = "auto") -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
     from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
@@ -131,16 +151,21 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
         raise GsgsError(f"{scene.source}: no held-out views to evaluate on")
     out_dir = Path(out_dir)
 
+    from gsgs_engine.render.project import DEFAULT_NEAR
+
+    layout = bench_rig(scene, log) if rig == "auto" else {"rig": "not read (--rig off)", "near": None}
+    near = float(layout["near"]) if layout.get("near") else DEFAULT_NEAR
+
     def config(n_iters: int) -> TrainConfig:
         return TrainConfig(iters=n_iters, sh_degree=sh_degree, backend=backend, seed=seed, init=init,
-                           random_init_points=init_points, checkpoint_every=0)
+                           random_init_points=init_points, checkpoint_every=0, novel_view_near=near)
 
     t0 = time.perf_counter()
     _warm_up(backend, scene.test[0].camera)
     log(f"[bench dynamic] rasteriser ready ({time.perf_counter() - t0:.1f}s, not counted in train_seconds)")
     region_fn, region_what = region_masks(scene.test)
     log(f"[bench dynamic] dynamic region: {region_what}")
-    results: dict = {"region": region_what}
+    results: dict = {"region": region_what, "rig": layout, "novel_view_near": near}
     trainer = SpacetimeTrainer(scene, config(iters), log=log)
     results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips)
     (out_dir / "4d").mkdir(parents=True, exist_ok=True)
@@ -276,7 +301,8 @@ def run(args) -> int:
               f"{len(scene.test)} test views (cameras {test_cams})", flush=True)
         run_dir = out if len(counts) == 1 else out / f"cameras_{n}"
         results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
-                                    args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips)
+                                    args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips,
+                                    rig=args.rig)
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
