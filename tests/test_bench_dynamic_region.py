@@ -86,7 +86,8 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
     out = tmp_path / "bench"
     args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
                      per_frame_iters=3, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
-                     threads=0, resolution_scale=1.0, no_lpips=True, rig="auto")
+                     threads=0, resolution_scale=1.0, no_lpips=True, rig="auto",
+                     techniques="exposure")
     assert run(args) == 0
     every = json.loads((out / "results.json").read_text())["cameras"]
     assert sorted(every) == ["2", "3"]
@@ -101,6 +102,8 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
             r = results[name]
             assert len(r["per_view"]) == 6  # two test cameras x three frames
             assert np.isfinite(r["psnr"]) and np.isfinite(r["psnr_region"]) and r["lpips"] is None
+            if name != "static_per_frame":  # one model: its techniques' reports (per-camera exposure)
+                assert r["techniques"]["exposure"]["cameras"] == int(n)
         assert (out / f"cameras_{n}" / "results.json").is_file()
         assert (out / f"cameras_{n}" / "4d" / "point_cloud.ply").is_file()
     table = (out / "results.md").read_text()

@@ -56,6 +56,9 @@ def add_arguments(parser) -> None:
                         help="auto (default): read the rig from the first frame's training views as gsgs train does, "
                              "and draw the test views of an inward shell with its near plane; off: the renderer's "
                              "default near plane (the bench before the rig was read)")
+    parser.add_argument("--techniques", default=None,
+                        help="sparse-view techniques for every model of the comparison, as gsgs train takes them "
+                             "(e.g. exposure,dropout; default none)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
 
@@ -91,10 +94,13 @@ def _subscene(scene, train_idx: list[int], test_idx: list[int]):
 
 
 def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, region_fn=None,
-                lpips: bool = True) -> dict:
+                lpips: bool = True, techniques=None) -> dict:
     from gsgs_engine.train.evaluate import evaluate_views
+    from gsgs_engine.train.techniques.catalogue import make_techniques
 
     trainer.setup()
+    for technique in make_techniques(techniques or []):
+        trainer.add_technique(technique)
     trainer.train()
     ev = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree), test_views,
                         renders_dir=renders_dir, region_fn=region_fn, lpips=lpips)
@@ -103,6 +109,7 @@ def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, 
         f"{trainer.model.num_gaussians} Gaussians, held-out PSNR {ev['psnr']:.2f}"
         + (f", dynamic region {region:.2f}" if region is not None else ""))
     return {"psnr": ev["psnr"], "ssim": ev["ssim"], "lpips": ev["lpips"], "psnr_region": region,
+            "techniques": {t.name: t.report() for t in trainer.techniques},
             "train_seconds": trainer.train_seconds, "iters": trainer.step,
             "num_gaussians": trainer.model.num_gaussians, "init": trainer.init_info.to_dict(),
             "per_view": [{"name": v["name"], "time": t.camera.time, "psnr": v["psnr"], "ssim": v["ssim"],
@@ -139,7 +146,7 @@ def bench_rig(scene, log=print) -> dict:
 
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
-                      log=print, lpips: bool = True, rig: str = "auto") -> dict:
+                      log=print, lpips: bool = True, rig: str = "auto", techniques: str | None = None) -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
     from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
@@ -152,7 +159,9 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     out_dir = Path(out_dir)
 
     from gsgs_engine.render.project import DEFAULT_NEAR
+    from gsgs_engine.train.techniques.catalogue import parse_techniques
 
+    chosen = parse_techniques(techniques, "--techniques")  # checked before anything trains
     layout = bench_rig(scene, log) if rig == "auto" else {"rig": "not read (--rig off)", "near": None}
     near = float(layout["near"]) if layout.get("near") else DEFAULT_NEAR
 
@@ -167,13 +176,13 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     log(f"[bench dynamic] dynamic region: {region_what}")
     results: dict = {"region": region_what, "rig": layout, "novel_view_near": near}
     trainer = SpacetimeTrainer(scene, config(iters), log=log)
-    results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips)
+    results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips, chosen)
     (out_dir / "4d").mkdir(parents=True, exist_ok=True)
     write_gaussian_ply(out_dir / "4d" / "point_cloud.ply", trainer.model.to_ply())
 
     trainer = Trainer(scene, config(iters), log=log)  # the plain 3D trainer ignores camera.time
     results["static_all"] = _train_eval(trainer, scene.test, out_dir / "renders" / "static_all", log, "static_all",
-                                        region_fn, lpips)
+                                        region_fn, lpips, chosen)
 
     train_frames = views_by_frame(scene.train)
     test_frames = views_by_frame(scene.test)
@@ -186,7 +195,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
         sub = _subscene(scene, [index[id(v)] for v in train_frames[t]], [index[id(v)] for v in test_views])
         trainer = Trainer(sub, config(per_frame_iters), log=lambda msg: None)
         r = _train_eval(trainer, sub.test, out_dir / "renders" / "static_per_frame" / f"t{t:.3f}", log,
-                        f"static_per_frame t={t:.3f}", region_fn, lpips)
+                        f"static_per_frame t={t:.3f}", region_fn, lpips, chosen)
         per["per_view"].extend(r["per_view"])
         per["train_seconds"] += r["train_seconds"]
         per["iters"] += r["iters"]
@@ -302,13 +311,14 @@ def run(args) -> int:
         run_dir = out if len(counts) == 1 else out / f"cameras_{n}"
         results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
                                     args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips,
-                                    rig=args.rig)
+                                    rig=args.rig, techniques=args.techniques)
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
                             "resolution": [first.width, first.height], "iters": args.iters,
                             "per_frame_iters": args.per_frame_iters, "init": args.init,
                             "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
+                            "techniques": args.techniques or "none",
                             "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
                             "lpips": "none" if args.no_lpips else "vgg",
                             "metric": "PSNR / SSIM / LPIPS on the test cameras, averaged over every test view "

@@ -27,6 +27,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 
+#: ctx.shared key: the training view whose photo supervises the render being made, where it is not the step's
+#: own view (a pseudo view warped from that photo); per-camera corrections (techniques/exposure.py) read it
+PHOTO_VIEW = "photo_view"
+
+
 @dataclass
 class StepContext:
     """What a technique's hooks may look at in the current step.

@@ -17,6 +17,7 @@ from gsgs_engine.train.techniques.binocular import BinocularConsistency
 from gsgs_engine.train.techniques.coregularisation import CoRegularisation
 from gsgs_engine.train.techniques.count_control import GaussianBudget
 from gsgs_engine.train.techniques.dropout import GaussianDropout
+from gsgs_engine.train.techniques.exposure import ExposureCompensation
 from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
 
 #: name -> (class, one line for --help); the order is the order techniques are added in
@@ -27,6 +28,8 @@ TECHNIQUES = {
     "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
     "coregularisation": (CoRegularisation, "a second field trained alongside, co-regularised at pseudo views and "
                                            "co-pruned (CoR-GS; about 2x the time; static scenes)"),
+    "exposure": (ExposureCompensation, "per-camera colour gain and offset learned beside the scene (photos metered "
+                                       "apart, camera rigs); novel views keep the average camera's colours"),
 }
 
 

@@ -20,7 +20,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
 from gsgs_engine.train.losses import photometric_terms
 from gsgs_engine.train.resample import resize_area
-from gsgs_engine.train.technique import StepContext, Technique
+from gsgs_engine.train.technique import PHOTO_VIEW, StepContext, Technique
 
 
 @dataclass
@@ -91,7 +91,12 @@ class PseudoSupervision(Technique):
         tr = ctx.trainer
         j = int(tr.np_rng.integers(len(self.views)))
         pv, camera = self.views[j], self._cameras[j]
-        out = tr.render_for_training(ctx, camera)  # a pseudo target has the scene background baked in
+        if pv.nearest_train is not None:  # the photo its target was warped from (per-camera exposure)
+            ctx.shared[PHOTO_VIEW] = int(pv.nearest_train)
+        try:
+            out = tr.render_for_training(ctx, camera)  # a pseudo target has the scene background baked in
+        finally:
+            ctx.shared.pop(PHOTO_VIEW, None)
         ctx.renders.append((out, camera))
         ctx.shared["pseudo"] = (j, pv, out)
         return photometric_terms(out.color, self._targets[j], tr.config.lambda_dssim, weight=pv.weight,
