@@ -85,7 +85,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
 
     out = tmp_path / "bench"
     args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
-                     per_frame_iters=3, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
+                     per_frame_iters=3, init="mvs", init_points=60, sh_degree=0, backend="auto", seed=0,
                      threads=0, resolution_scale=1.0, no_lpips=True, rig="auto",
                      techniques="exposure")
     assert run(args) == 0
@@ -96,6 +96,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         assert setup["format"] == "panoptic" and len(setup["train_cameras"]) == int(n)
         assert setup["test_cameras"] == TEST_IDS and setup["frames"] == 3 and setup["lpips"] == "none"
         assert "change over time" in results["region"]
+        assert results["4d"]["init"]["method"] == "mvs" and results["static_all"]["init"]["method"] != "random"
         assert results["rig"]["rig"] in ("object orbit", "forward-facing", "inward shell")
         assert results["novel_view_near"] == (results["rig"]["near"] or DEFAULT_NEAR)
         for name in ("4d", "static_all", "static_per_frame"):

@@ -286,3 +286,18 @@ def test_gsgs_train_on_time_data_exports_a_4d_ply(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     ply = read_gaussian_ply(out / "point_cloud.ply")
     assert "t_center" in ply.extra and "motion_0" in ply.extra
+
+
+def test_mvs_init_runs_the_plane_sweep_per_frame(clip):
+    """--init mvs on a clip: the static init's stereo, once per frame, each frame's points at its time."""
+    scene = load_dynamic_scene(clip, train_cameras=3)
+    lines = []
+    model, info = initialise_spacetime(scene, scene.train, _config(init="mvs"), torch.Generator(), lines.append)
+    assert info.method == "mvs" and model.num_gaussians == info.num_points > 0
+    assert sorted(set(model.t_center.detach().tolist())) == [0.0, 0.5, 1.0]
+    assert [line.split(":")[1].strip() for line in lines] == ["frame t=0.000", "frame t=0.500", "frame t=1.000"]
+    assert torch.isfinite(model.means).all()
+    trainer = SpacetimeTrainer(scene, _config(init="mvs", iters=2))
+    trainer.setup()  # the 4D trainer makes it itself (no longer refused)
+    trainer.train()
+    assert trainer.init_info.method == "mvs" and trainer.step == 2

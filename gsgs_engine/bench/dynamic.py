@@ -46,8 +46,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel")
     parser.add_argument("--iters", type=int, default=600, help="training steps of the 4D and static_all models")
     parser.add_argument("--per-frame-iters", type=int, default=200, help="training steps of each per-frame model")
-    parser.add_argument("--init", default="random", choices=("random", "auto"),
-                        help="random (default, same box for every model) or auto (triangulate, per frame for 4D)")
+    parser.add_argument("--init", default="random", choices=("random", "auto", "mvs"),
+                        help="random (default, same box for every model), auto (triangulate, per frame for 4D) or "
+                             "mvs (dense plane-sweep stereo plus the triangulated points, per frame for 4D)")
     parser.add_argument("--init-points", type=int, default=2000, help="random initial Gaussians")
     parser.add_argument("--sh-degree", type=int, default=0)
     parser.add_argument("--backend", default="auto", choices=("auto", "reference", "cpu", "cuda"))
@@ -93,12 +94,28 @@ def _subscene(scene, train_idx: list[int], test_idx: list[int]):
                  far=scene.far, has_alpha=scene.has_alpha, world_scale=scene.world_scale)
 
 
+def _static_mvs_model(trainer):
+    """(initial_model, init_info) of a static baseline with --init mvs: the dense init gsgs train makes for a
+    still (the 4D trainer makes its per-frame one itself)."""
+    from gsgs_engine.init.mvs import MVSConfig, dense_initial_model
+
+    cfg = trainer.config
+    return dense_initial_model(trainer.scene, trainer.train_views, cfg.sh_degree, seed=cfg.seed,
+                               config=MVSConfig(max_side=cfg.mvs_max_side), log=lambda msg: None)
+
+
 def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, region_fn=None,
                 lpips: bool = True, techniques=None) -> dict:
     from gsgs_engine.train.evaluate import evaluate_views
     from gsgs_engine.train.techniques.catalogue import make_techniques
 
-    trainer.setup()
+    from gsgs_engine.train.dynamic import SpacetimeTrainer
+
+    if trainer.config.init == "mvs" and not isinstance(trainer, SpacetimeTrainer):
+        model, info = _static_mvs_model(trainer)
+        trainer.setup(initial_model=model, init_info=info)
+    else:
+        trainer.setup()
     for technique in make_techniques(techniques or []):
         trainer.add_technique(technique)
     trainer.train()

@@ -370,7 +370,18 @@ def dense_initial_model(scene, train_views: list, sh_degree: int, seed: int = 0,
 
     The SfM points (triangulated from the training views only) set each view's depth range and join
     the result; without them the cameras' near/far or the scene's box bound the sweep."""
-    from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
+    from gsgs_engine.gaussians import GaussianModel, InitInfo
+
+    points, colors, method, reason = dense_and_sparse_points(scene, train_views, seed, config, use_sfm, log)
+    model = GaussianModel.from_points(points, colors, sh_degree)
+    return model, InitInfo(method, len(points), reason)
+
+
+def dense_and_sparse_points(scene, train_views: list, seed: int = 0, config: MVSConfig | None = None,
+                            use_sfm: bool = True, log: Callable[[str], None] = print):
+    """(points, colours, method, reason): MVS points of the training views plus their SfM points (see
+    dense_initial_model); a 4D run calls it once per frame (gsgs_engine.train.dynamic)."""
+    from gsgs_engine.gaussians import scene_bounds_from_cameras
 
     sparse, sparse_cols = None, None
     if use_sfm and len(train_views) >= 2:
@@ -393,5 +404,4 @@ def dense_initial_model(scene, train_views: list, sh_degree: int, seed: int = 0,
         reason += f"; plus {len(sparse)} SfM points of the training views"
     if len(points) == 0:
         raise GsgsError("mvs: no initial points (no stereo matches, no foreground pixels)")
-    model = GaussianModel.from_points(points, colors, sh_degree)
-    return model, InitInfo(dense.method, len(points), reason)
+    return points, colors, dense.method, reason

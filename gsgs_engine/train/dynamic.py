@@ -55,6 +55,8 @@ def initialise_spacetime(scene, train_views, config: TrainConfig, generator: tor
     spacing = float(np.min(np.diff(times))) if len(times) > 1 else 1.0
     t_scale = max(INIT_T_SCALE_FRAMES * spacing, 1e-3)
     reasons = []
+    if config.init == "mvs":
+        return _per_frame_mvs(scene, frames, config, t_scale, log)
     if config.init in ("auto", "sfm"):
         pts_all, cols_all, t_all = [], [], []
         try:
@@ -91,6 +93,36 @@ def initialise_spacetime(scene, train_views, config: TrainConfig, generator: tor
     return model, InitInfo("random", config.random_init_points,
                            f"random in the box {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} and uniform "
                            f"in time, temporal scale {RANDOM_INIT_T_SCALE} ({why})")
+
+
+def _per_frame_mvs(scene, frames: dict, config: TrainConfig, t_scale: float, log) -> tuple[SpacetimeModel, InitInfo]:
+    """Dense multi-view-stereo points of every frame's training views (plus that frame's SfM points), each at
+    its frame's time: the static init's plane sweep (gsgs_engine.init.mvs), run per frame. The point budget
+    and the fallback are shared out over the frames, so a clip starts no larger than a still would."""
+    from dataclasses import replace
+
+    from gsgs_engine.init.mvs import MVSConfig, dense_and_sparse_points
+
+    base = MVSConfig(max_side=config.mvs_max_side)
+    per_frame = replace(base, max_points=max(base.max_points // len(frames), 1000),
+                        min_points=max(base.min_points // len(frames), 100),
+                        fallback_points=max(base.fallback_points // len(frames), 500))
+    pts_all, cols_all, t_all, methods = [], [], [], []
+    quiet = lambda msg: None  # noqa: E731 - one line per frame below instead of one per view
+    for k, (t, views) in enumerate(frames.items()):
+        pts, cols, method, _ = dense_and_sparse_points(scene, views, seed=config.seed + k, config=per_frame,
+                                                        log=quiet)
+        pts_all.append(np.asarray(pts, np.float32))
+        cols_all.append(np.asarray(cols, np.float32))
+        t_all.append(np.full(len(pts), t, dtype=np.float32))
+        methods.append(method)
+        log(f"4D init: frame t={t:.3f}: {len(pts)} points ({method}, {len(views)} views)")
+    n = int(sum(len(p) for p in pts_all))
+    model = SpacetimeModel.from_points(np.concatenate(pts_all), np.concatenate(cols_all), config.sh_degree,
+                                       times=np.concatenate(t_all), t_scale=t_scale)
+    kinds = ", ".join(f"{m} x{methods.count(m)}" for m in sorted(set(methods)))
+    return model, InitInfo("mvs", n, f"{n} multi-view-stereo + SfM points, per frame over {len(frames)} frames "
+                                     f"({kinds}; temporal centre = the frame's time, scale {t_scale:.3f})")
 
 
 # -- densification that respects time -----------------------------------------------------------
@@ -154,9 +186,6 @@ class SpacetimeTrainer(Trainer):
     # -- model, optimiser, rendering ------------------------------------------------------------
     def setup(self, resume: bool = False, initial_model: GaussianModel | None = None,
               init_info: InitInfo | None = None) -> None:
-        if self.config.init == "mvs":
-            raise GsgsError("--init mvs builds a static model; a scene with time starts from its own 4D init "
-                            "(use --init auto, sfm, points or random)")
         if initial_model is not None and not isinstance(initial_model, SpacetimeModel):
             raise GsgsError("a 4D trainer continues only from a 4D model (SpacetimeModel)")
         resuming = resume and self.checkpoint_dir and ckpt.latest_checkpoint(self.checkpoint_dir) is not None
