@@ -60,6 +60,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--techniques", default=None,
                         help="sparse-view techniques for every model of the comparison, as gsgs train takes them "
                              "(e.g. exposure,dropout; default none)")
+    parser.add_argument("--models", default=",".join(VARIANTS),
+                        help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
 
@@ -163,7 +165,8 @@ def bench_rig(scene, log=print) -> dict:
 
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
-                      log=print, lpips: bool = True, rig: str = "auto", techniques: str | None = None) -> dict:
+                      log=print, lpips: bool = True, rig: str = "auto", techniques: str | None = None,
+                      models=VARIANTS) -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
     from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
@@ -192,14 +195,18 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     region_fn, region_what = region_masks(scene.test)
     log(f"[bench dynamic] dynamic region: {region_what}")
     results: dict = {"region": region_what, "rig": layout, "novel_view_near": near}
-    trainer = SpacetimeTrainer(scene, config(iters), log=log)
-    results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips, chosen)
-    (out_dir / "4d").mkdir(parents=True, exist_ok=True)
-    write_gaussian_ply(out_dir / "4d" / "point_cloud.ply", trainer.model.to_ply())
-
-    trainer = Trainer(scene, config(iters), log=log)  # the plain 3D trainer ignores camera.time
-    results["static_all"] = _train_eval(trainer, scene.test, out_dir / "renders" / "static_all", log, "static_all",
-                                        region_fn, lpips, chosen)
+    if "4d" in models:
+        trainer = SpacetimeTrainer(scene, config(iters), log=log)
+        results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips,
+                                    chosen)
+        (out_dir / "4d").mkdir(parents=True, exist_ok=True)
+        write_gaussian_ply(out_dir / "4d" / "point_cloud.ply", trainer.model.to_ply())
+    if "static_all" in models:
+        trainer = Trainer(scene, config(iters), log=log)  # the plain 3D trainer ignores camera.time
+        results["static_all"] = _train_eval(trainer, scene.test, out_dir / "renders" / "static_all", log,
+                                            "static_all", region_fn, lpips, chosen)
+    if "static_per_frame" not in models:
+        return results
 
     train_frames = views_by_frame(scene.train)
     test_frames = views_by_frame(scene.test)
@@ -236,7 +243,7 @@ def format_table(results: dict) -> str:
 
     rows = [f"{'model':<18}{'PSNR':>8}{'region':>8}{'SSIM':>8}{'LPIPS':>8}{'train s':>10}{'steps':>8}"
             f"{'Gaussians':>11}"]
-    for name in VARIANTS:
+    for name in [v for v in VARIANTS if v in results]:
         r = results[name]
         rows.append(f"{name:<18}{r['psnr']:>8.2f}{num(r.get('psnr_region'), '.2f'):>8}{r['ssim']:>8.4f}"
                     f"{num(r.get('lpips'), '.4f'):>8}{r['train_seconds']:>10.1f}{r['iters']:>8d}"
@@ -253,10 +260,11 @@ def format_markdown(every: dict) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for n in sorted(every, key=int):
         results = every[n]
-        best_static = max(results[v]["psnr"] for v in VARIANTS if v != "4d")
-        for name in VARIANTS:
+        best_static = max((results[v]["psnr"] for v in VARIANTS if v != "4d" and v in results), default=None)
+        for name in [v for v in VARIANTS if v in results]:
             r = results[name]
-            psnr = f"**{r['psnr']:.2f}**" if name == "4d" and r["psnr"] > best_static else f"{r['psnr']:.2f}"
+            bold = name == "4d" and best_static is not None and r["psnr"] > best_static
+            psnr = f"**{r['psnr']:.2f}**" if bold else f"{r['psnr']:.2f}"
             lines.append(f"| {n} | {name} | {psnr} | {num(r.get('psnr_region'), '.2f')} | {r['ssim']:.3f} | "
                          f"{num(r.get('lpips'), '.3f')} | {r['train_seconds']:.0f} | {r['num_gaussians']} |")
     return "\n".join(lines)
@@ -300,6 +308,9 @@ def run(args) -> int:
 
         torch.set_num_threads(args.threads)
     counts = parse_camera_counts(args.cameras)
+    models = [m.strip() for m in str(args.models).split(",") if m.strip()]
+    if not models or any(m not in VARIANTS for m in models):
+        raise GsgsError(f"--models {args.models!r}: choose from {', '.join(VARIANTS)} (comma-separated)")
     if args.iters < 1 or args.per_frame_iters < 1:
         raise GsgsError("--iters and --per-frame-iters must be at least 1")
     if args.frames < 1:
@@ -328,7 +339,7 @@ def run(args) -> int:
         run_dir = out if len(counts) == 1 else out / f"cameras_{n}"
         results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
                                     args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips,
-                                    rig=args.rig, techniques=args.techniques)
+                                    rig=args.rig, techniques=args.techniques, models=models)
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
