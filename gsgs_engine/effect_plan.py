@@ -206,7 +206,7 @@ def rig_layout(cameras, points=None, near: float | None = None, far: float | Non
     return out
 
 
-def _rig_effect(layout: dict, choice: str) -> Effect:
+def rig_effect(layout: dict, choice: str) -> Effect:
     """The plan's "rig" effect: on where an inward shell's near plane is in force."""
     if choice == "inward":
         if layout.get("shell_radius") is None:
@@ -410,7 +410,7 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
 
     # the rig: forward-facing, object orbit or inward shell (whose renders need a near plane)
     rig_points = triangulation.points if triangulation is not None else scene.points
-    effects["rig"] = _rig_effect(rig_layout(cams, rig_points, scene.near, scene.far), rig_choice)
+    effects["rig"] = rig_effect(rig_layout(cams, rig_points, scene.near, scene.far), rig_choice)
 
     # view-dependent colour
     cap = identifiable_sh_degree(len(views))

@@ -125,6 +125,10 @@ def test_the_bench_reads_the_panoptic_dome_as_a_shell_and_draws_test_views_with_
     layout = bench_rig(scene, log=lambda m: None)
     assert layout["rig"] == "inward shell" and layout["points_at_shell"] >= 0.2
     assert 0.1 < layout["near"] < 1.0  # 0.1 x the dome's radius (about 2.7 units)
+    three = load_bench_scene(PANOPTIC, 3, 1, 0.5)  # too far apart to triangulate: reads as an orbit ...
+    assert bench_rig(three, log=lambda m: None)["near"] is None
+    told = bench_rig(three, "inward", log=lambda m: None)  # ... unless the user says what it is
+    assert told["rig"] == "inward shell" and 0.1 < told["near"] < 1.0
 
 
 def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path):
@@ -132,10 +136,10 @@ def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path)
 
     args = Namespace(cameras="2", out=str(tmp_path / "one"), data=str(pano), ring=10, frames=3, size=64, samples=4,
                      iters=4, per_frame_iters=2, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
-                     threads=0, resolution_scale=1.0, no_lpips=True, rig="off", techniques=None, models="4d")
+                     threads=0, resolution_scale=1.0, no_lpips=True, rig="orbit", techniques=None, models="4d")
     assert run(args) == 0
     results = json.loads((tmp_path / "one" / "results.json").read_text())
     assert "4d" in results and "static_all" not in results and "static_per_frame" not in results
-    assert results["rig"]["near"] is None and results["novel_view_near"] == DEFAULT_NEAR  # --rig off
+    assert results["rig"]["near"] is None and results["novel_view_near"] == DEFAULT_NEAR  # --rig orbit
     with pytest.raises(GsgsError, match="--models"):
         run(Namespace(**{**vars(args), "models": "4d,nope"}))

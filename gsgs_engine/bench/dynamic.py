@@ -53,10 +53,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sh-degree", type=int, default=0)
     parser.add_argument("--backend", default="auto", choices=("auto", "reference", "cpu", "cuda"))
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--rig", default="auto", choices=("auto", "off"),
+    parser.add_argument("--rig", default="auto", choices=("auto", "inward", "orbit"),
                         help="auto (default): read the rig from the first frame's training views as gsgs train does, "
-                             "and draw the test views of an inward shell with its near plane; off: the renderer's "
-                             "default near plane (the bench before the rig was read)")
+                             "and draw the test views of an inward shell with its near plane; inward / orbit: say "
+                             "what it is (gsgs train --effects rig=...); orbit keeps the renderer's default near plane")
     parser.add_argument("--techniques", default=None,
                         help="sparse-view techniques for every model of the comparison, as gsgs train takes them "
                              "(e.g. exposure,dropout; default none)")
@@ -147,17 +147,17 @@ def _warm_up(backend: str, camera) -> None:
            torch.full((1, 3), 0.1), torch.ones(1), torch.zeros(1, 1, 3), camera, 0, torch.ones(3), backend=backend)
 
 
-def bench_rig(scene, log=print) -> dict:
+def bench_rig(scene, choice: str = "auto", log=print) -> dict:
     """The rig of the training cameras, as the effect plan reads it (gsgs train): their first frame's views
     triangulated with the known poses tell an object orbit from an inward shell, whose novel views (here the
     test cameras) are rendered with the shell's near plane (docs/inward_rigs.md)."""
-    from gsgs_engine.effect_plan import rig_layout
+    from gsgs_engine.effect_plan import rig_effect, rig_layout
     from gsgs_engine.sfm import triangulate_with_known_poses
     from gsgs_engine.train.dynamic import views_by_frame
 
     first = next(iter(views_by_frame(scene.train).values()))
     points = triangulate_with_known_poses(first).points if len(first) >= 2 else None
-    layout = rig_layout([v.camera for v in first], points, scene.near, scene.far)
+    layout = rig_effect(rig_layout([v.camera for v in first], points, scene.near, scene.far), choice).measured
     log(f"[bench dynamic] rig: {layout['rig']} ({layout.get('points', 0)} points of the first frame"
         + (f"; novel views drawn with a near plane of {layout['near']:.3g}" if layout.get("near") else "") + ")")
     return layout
@@ -182,7 +182,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     from gsgs_engine.train.techniques.catalogue import parse_techniques
 
     chosen = parse_techniques(techniques, "--techniques")  # checked before anything trains
-    layout = bench_rig(scene, log) if rig == "auto" else {"rig": "not read (--rig off)", "near": None}
+    layout = bench_rig(scene, rig, log)
     near = float(layout["near"]) if layout.get("near") else DEFAULT_NEAR
 
     def config(n_iters: int) -> TrainConfig:
