@@ -301,3 +301,18 @@ def test_mvs_init_runs_the_plane_sweep_per_frame(clip):
     trainer.setup()  # the 4D trainer makes it itself (no longer refused)
     trainer.train()
     assert trainer.init_info.method == "mvs" and trainer.step == 2
+
+
+@pytest.mark.slow  # a few seconds of stereo and six steps through the CLI
+def test_prior_auto_on_a_video_runs_the_4d_recipe(clip, tmp_path):
+    """--prior auto on a multi-view video: per-frame dense init and per-camera exposure (effect_plan's 4D recipe)."""
+    import json
+
+    from gsgs_engine.cli import main
+
+    assert main(["train", str(clip), "--out", str(tmp_path / "run"), "--iters", "6", "--prior", "auto"]) == 0
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["init"]["method"] == "mvs" and "per frame" in metrics["init"]["reason"]
+    assert metrics["plan"]["techniques"] == [{"name": "exposure", "options": {}}]
+    exposure = metrics["techniques"]["exposure"]
+    assert exposure["cameras"] == len({k for k in exposure["per_camera"]}) >= 2  # one correction per camera

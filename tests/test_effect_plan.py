@@ -200,7 +200,10 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert pc.techniques == list(AUTO_TECHNIQUES)
     assert plan(make_scene(n_train=24))["techniques"].enabled is False  # dense: plain optimisation
     assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
-    assert plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]))["techniques"].enabled is False  # measured on static scenes only
+    video = plan_effects(make_scene(times=[0.0, 0.3, 0.6, 1.0]), TrainConfig(), AUTO, SH1, log=lambda m: None)
+    assert video["techniques"].value == ["exposure"] and "4D" in video["techniques"].reason  # the 4D recipe
+    assert video["init"].value == "mvs" and "per frame" in video["init"].reason
+    assert plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]), replace(AUTO, prior="none"))["techniques"].value == []
     named = plan(make_scene(n_train=24), replace(AUTO, prior="none", techniques=["dropout"]))["techniques"]
     assert named.enabled and named.value == ["dropout"] and named.source == "user"
     off = plan(make_scene(n_train=4), replace(AUTO, techniques=[]))["techniques"]  # --techniques none
