@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 from argparse import Namespace
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -107,6 +108,9 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
                 assert r["techniques"]["exposure"]["cameras"] == int(n)
         assert (out / f"cameras_{n}" / "results.json").is_file()
         assert (out / f"cameras_{n}" / "4d" / "point_cloud.ply").is_file()
+        picture = cv2.imread(str(out / f"cameras_{n}" / "comparison.png"))  # ground truth | 4D | best static
+        view = results["4d"]["per_view"][0]
+        assert picture is not None and picture.shape[:2] == (3 * 12, 3 * 16), view  # three frames of 16x12 views
     table = (out / "results.md").read_text()
     assert table.count("| 2 | ") == 3 and table.count("| 3 | ") == 3 and "dynamic region PSNR" in table
 

@@ -122,7 +122,8 @@ def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, 
         trainer.add_technique(technique)
     trainer.train()
     ev = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree), test_views,
-                        renders_dir=renders_dir, region_fn=region_fn, lpips=lpips)
+                        renders_dir=renders_dir, region_fn=region_fn, lpips=lpips,
+                        max_renders=len(test_views))  # every test view: the comparison picture picks three times
     region = ev.get("psnr_region")
     log(f"[bench dynamic] {label}: {trainer.step} steps, {trainer.train_seconds:.1f}s, "
         f"{trainer.model.num_gaussians} Gaussians, held-out PSNR {ev['psnr']:.2f}"
@@ -235,6 +236,42 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     per["psnr_region"] = mean_present([v["psnr_region"] for v in per["per_view"]])
     results["static_per_frame"] = per
     return results
+
+
+def comparison_picture(scene, run_dir: Path, results: dict, path: Path, frames: int = 3) -> Path | None:
+    """One test camera at `frames` times (first, middle, last): ground truth, the 4D model and the best static
+    model (by PSNR) side by side, from the renders the bench saved; None when a render is missing."""
+    import cv2
+    import numpy as np
+
+    statics = [v for v in VARIANTS if v != "4d" and v in results]
+    if "4d" not in results or not statics:
+        return None
+    best = max(statics, key=lambda v: results[v]["psnr"])
+    camera = scene.test[0].camera.extra.get("camera_index")
+    views = [v for v in scene.test if v.camera.extra.get("camera_index") == camera]
+    views = sorted(views, key=lambda v: v.camera.time)
+    picks = [views[round(i * (len(views) - 1) / max(frames - 1, 1))] for i in range(min(frames, len(views)))]
+    rows = []
+    for view in picks:
+        stem = view.name.replace("/", "_")
+        tiles = [np.clip(view.image()[..., :3], 0, 1)]
+        for model in ("4d", best):
+            found = sorted((run_dir / "renders" / model).rglob(f"*_{stem}.png"))
+            if not found:
+                return None
+            tiles.append(cv2.cvtColor(cv2.imread(str(found[0])), cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0)
+        rows.append(np.concatenate(tiles, axis=1))
+    grid = (np.concatenate(rows, axis=0) * 255).round().astype(np.uint8)
+    h, w = tiles[0].shape[:2]
+    for col, label in enumerate(("ground truth", "4D", best)):
+        cv2.putText(grid, label, (col * w + 6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    for row, view in enumerate(picks):
+        cv2.putText(grid, f"camera {camera}, t={view.camera.time:.2f}", (6, row * h + h - 8),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
+    return path
 
 
 def format_table(results: dict) -> str:
@@ -352,6 +389,9 @@ def run(args) -> int:
                             "metric": "PSNR / SSIM / LPIPS on the test cameras, averaged over every test view "
                                       "(camera x frame); region: PSNR inside " + results["region"]}
         write_json_atomic(run_dir / "results.json", results)
+        picture = comparison_picture(scene, run_dir, results, run_dir / "comparison.png")
+        if picture is not None:
+            print(f"[bench dynamic] wrote {picture} (ground truth, 4D, best static at three times)", flush=True)
         print(f"[bench dynamic] {n} training cameras:")
         print(format_table(results))
         print(f"[bench dynamic] wrote {run_dir / 'results.json'}", flush=True)
