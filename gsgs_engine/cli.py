@@ -29,6 +29,12 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
                "variants x scenes x seeds, mean +- std"),
     "sfm": ("gsgs_engine.bench.sfm_poses", "camera poses from sparse photo subsets against known poses"),
     "dynamic": ("gsgs_engine.bench.dynamic", "4D vs static baselines on the rendered dynamic validation scene"),
+    "mvs-points": ("gsgs_engine.bench.mvs_points", "dense (MVS) initialisation: seconds and point accuracy on the "
+                   "sparse-view protocols' training views, one JSON line per scene"),
+    "dense-init": ("gsgs_engine.bench.dense_init", "one cell: plain 3DGS from the SfM points vs from the dense (MVS) "
+                   "initialisation"),
+    "pseudo-targets": ("gsgs_engine.bench.pseudo_targets", "warp-inpaint pseudo targets vs the render at held-out "
+                       "views of a trained result"),
 }
 
 

@@ -581,18 +581,19 @@ def test_the_same_scene_trains_alike_at_any_scale(scene4, tmp_path, capsys):
     assert np.median(ply[1e-4].log_scales) == pytest.approx(np.median(ply[1.0].log_scales) + np.log(1e-4), abs=0.05)
 
 
-def test_pseudo_target_quality_script_errors_are_one_line(scene, tmp_path):
+def test_pseudo_targets_bench_errors_are_one_line(scene, tmp_path):
     from gsgs_engine.io.ply import write_gaussian_ply
 
-    script = Path(__file__).resolve().parents[1] / "scripts" / "pseudo_target_quality.py"
     write_gaussian_ply(tmp_path / "nan.ply", _splats(20, nan=True))
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     for args, expected in (([scene, tmp_path / "nan.ply"], "NaN or Inf"),
-                           ([tmp_path / "nowhere", tmp_path / "nan.ply"], "no such file or folder")):
-        proc = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True,
-                              env=env, timeout=300)
+                           ([tmp_path / "nowhere", tmp_path / "nan.ply"], "no such file or folder"),
+                           ([scene, tmp_path / "nan.ply", "--max-test", "0"], "--max-test must be at least 1")):
+        proc = subprocess.run([sys.executable, "-m", "gsgs_engine", "bench", "pseudo-targets", *map(str, args)],
+                              capture_output=True, text=True, env=env, timeout=300)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
-        assert proc.stderr.strip().splitlines()[-1].startswith("pseudo_target_quality: error:")
+        assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+        assert proc.stderr.strip().startswith("gsgs: error:")
         assert expected in proc.stderr
 
 

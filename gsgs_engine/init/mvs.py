@@ -47,7 +47,7 @@ class MVSConfig:
     rel_depth: float = 0.01  # geometric consistency: relative depth difference
     # other views that must agree; None: 1 below 5 views (3-view LLFF has only 2 others), else 2. Measured on the
     # NeRF-synthetic 8 views: the share of points inside all 25 test silhouettes rises from 78 / 73 % (lego / chair,
-    # 1 view) to 88 / 78 % (2 views) for half the points (scripts/mvs_check.py)
+    # 1 view) to 88 / 78 % (2 views) for half the points (gsgs bench mvs-points)
     min_consistent: int | None = None
     max_points: int = 100_000
     min_points: int = 2000  # fewer fused points than this: add the frustum fallback

@@ -1,6 +1,6 @@
-"""Dense (MVS) initialisation: time and accuracy on the sparse-view protocols' training views.
+"""`gsgs bench mvs-points`: dense (MVS) initialisation, time and accuracy on the sparse-view protocols' views.
 
-`python scripts/mvs_check.py [--data-root ../shared/data]` prints one line per scene:
+`gsgs bench mvs-points [--data-root ../shared/data] [--scenes llff_flower,...]` prints one JSON line per scene:
 - seconds of the MVS itself (SfM triangulation, which the trainer runs anyway, timed apart);
 - agreement with the SfM points of the same training views: for each SfM point visible in a training
   view, the nearest MVS depth at its pixel (z-buffer of the fused points) vs the SfM depth;
@@ -17,6 +17,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_DATA = REPO.parent / "shared" / "data"
+DEFAULT_SCENES = "llff_flower,llff_horns,blender_lego,blender_chair"
 
 
 def sfm_agreement(points: np.ndarray, sfm: np.ndarray, views) -> dict:
@@ -78,24 +82,33 @@ def check(name: str, scene, log) -> dict:
     return row
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--data-root", type=Path, default=Path(__file__).resolve().parents[1].parent / "shared" / "data")
-    parser.add_argument("--scenes", default="llff_flower,llff_horns,blender_lego,blender_chair")
-    args = parser.parse_args()
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data-root", type=Path, default=DEFAULT_DATA,
+                        help=f"folder holding the scenes (default {DEFAULT_DATA})")
+    parser.add_argument("--scenes", default=DEFAULT_SCENES,
+                        help=f"comma-separated scene folders under --data-root (default {DEFAULT_SCENES}); "
+                             "llff_*: 3 training views, others: the NeRF-synthetic 8 views at half size")
+
+
+def run(args: argparse.Namespace) -> int:
+    from gsgs_engine import GsgsError
+
+    names = [n.strip() for n in args.scenes.split(",") if n.strip()]
+    if not names:
+        raise GsgsError("--scenes names no scene; give comma-separated folders under --data-root")
+    missing = [n for n in names if not (args.data_root / n).is_dir()]
+    if missing:  # before the first scene's minutes, not after them
+        raise GsgsError(f"{args.data_root}: no scene folder {', '.join(missing)}; pass --data-root or --scenes")
     import torch
 
     from gsgs_engine.bench.sparse import BLENDER_TRAIN_IDS
     from gsgs_engine.io.loader import load_scene
 
     torch.set_num_threads(2)
-    for name in args.scenes.split(","):
+    for name in names:
         if name.startswith("llff"):
             scene = load_scene(args.data_root / name, train_views=3)
         else:
             scene = load_scene(args.data_root / name, train_ids=BLENDER_TRAIN_IDS, resolution_scale=0.5)
         print(json.dumps(check(name, scene, log=lambda m: None)), flush=True)
-
-
-if __name__ == "__main__":
-    main()
+    return 0

@@ -1,61 +1,51 @@
-"""Are warp-inpaint pseudo targets better than the render? Checked where the truth is known.
+"""`gsgs bench pseudo-targets`: are warp-inpaint pseudo targets better than the render? Checked where the truth is known.
 
-    python scripts/pseudo_target_quality.py DATA RESULT/point_cloud.ply [--train-views N] [--max-test 10]
+    gsgs bench pseudo-targets DATA RESULT/point_cloud.ply [--train-views N] [--max-test 10]
 
 Loads a trained model, renders the training views (their depth is what the warp uses), then
 treats held-out test views as pseudo views: for each it prints the test PSNR of the render and
 of the warp-inpaint target built from the training photos, as the prior would build it. A
 prior can only teach what its targets get right: where the target scores below the render,
-pseudo supervision pulls the model away from the truth.
+pseudo supervision pulls the model away from the truth. A bad input exits 2 with one
+`gsgs: error:` line.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
-
-import numpy as np
-import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+def _psnr(a, b) -> float:
+    import torch
+
     return float(-10.0 * torch.log10(((a - b) ** 2).mean().clamp_min(1e-12)))
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Exit 0 with the table; 2 with one `pseudo_target_quality: error:` line for a bad input."""
-    from gsgs_engine import GsgsError
-
-    try:
-        return _run(argv)
-    except GsgsError as exc:
-        print(f"pseudo_target_quality: error: {exc}", file=sys.stderr)
-        return 2
-
-
-def _run(argv: list[str] | None) -> int:
-    from gsgs_engine import GsgsError
-    from gsgs_engine.gaussians import GaussianModel
-    from gsgs_engine.io import load_scene
-    from gsgs_engine.io.ply import read_gaussian_ply
-    from gsgs_engine.priors.warp_inpaint import TrainingPhoto, surface_depth, warp_inpaint
-    from gsgs_engine.render import render
-
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("data")
-    parser.add_argument("ply")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", help="the scene the result was trained on")
+    parser.add_argument("ply", help="the trained result's point_cloud.ply")
     parser.add_argument("--train-views", type=int, default=None, help="as given to gsgs train")
     parser.add_argument("--max-test", type=int, default=10, help="test views used, spread over the split")
     parser.add_argument("--backend", default="auto")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Exit 0 with the table; a bad input raises GsgsError (gsgs prints one `gsgs: error:` line, exits 2)."""
+    from gsgs_engine import GsgsError
+
     if args.train_views is not None and args.train_views < 1:
         raise GsgsError(f"--train-views must be at least 1 (got {args.train_views})")
     if args.max_test < 1:
         raise GsgsError(f"--max-test must be at least 1 (got {args.max_test})")
+    import numpy as np
+    import torch
+
+    from gsgs_engine.gaussians import GaussianModel
+    from gsgs_engine.io import load_scene
+    from gsgs_engine.io.ply import read_gaussian_ply
     from gsgs_engine.io.world_scale import ply_to_internal
+    from gsgs_engine.priors.warp_inpaint import TrainingPhoto, surface_depth, warp_inpaint
+    from gsgs_engine.render import render
 
     scene = load_scene(args.data, train_views=args.train_views)
     splats = read_gaussian_ply(args.ply)  # a NaN / Inf value is an error naming the file
@@ -96,7 +86,3 @@ def _run(argv: list[str] | None) -> int:
     if not np.isfinite(mean).all():
         raise GsgsError("a PSNR is not finite (the renders or targets hold NaN); the result is damaged")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
