@@ -1,4 +1,4 @@
-"""`gsgs bench pseudo-targets`: are warp-inpaint pseudo targets better than the render? Checked where the truth is known.
+"""`gsgs bench pseudo-targets`: are warp-inpaint pseudo targets better than the render, where the truth is known?
 
     gsgs bench pseudo-targets DATA RESULT/point_cloud.ply [--train-views N] [--max-test 10]
 
