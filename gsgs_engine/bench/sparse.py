@@ -57,6 +57,7 @@ ABLATION: dict[str, dict] = {
     "dense + opacity_decay": {"prior": "none", "init": "mvs", "techniques": ["opacity_decay"]},
     "dense + warp-inpaint pseudo views": {"prior": "warp", "init": "mvs"},
     "dense + coregularisation": {"prior": "none", "init": "mvs", "techniques": ["coregularisation"]},
+    "dense + exposure": {"prior": "none", "init": "mvs", "techniques": ["exposure"]},
     "dense + depth regulariser": {"prior": "depth", "init": "mvs", "prior_settings": {"depth_source": "sparse"}},
     "auto": VARIANTS["auto"],
 }
