@@ -254,7 +254,7 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
         if image_dir.exists():
             shutil.rmtree(image_dir)
         image_dir.mkdir(parents=True)
-        for stale in ("database.db", "sparse"):
+        for stale in ("database.db", "database.db-shm", "database.db-wal", "sparse"):
             _remove(work / stale)
         entries = []
         for i, (cam, img) in enumerate(pairs):
@@ -702,6 +702,11 @@ def _child_triangulate(pycolmap, p: dict, emit) -> dict:
     if max(max(e["width"], e["height"]) for e in entries) <= 400:
         extraction.sift.first_octave = -2
     names = [e["name"] for e in entries]
+    # Image ids in name order (as in _child_sfm): threaded extraction numbers views as they finish, and
+    # the triangulator visits views by id, so a busy machine gave other points for the same views.
+    pycolmap.Database.open(db_path).close()
+    pycolmap.import_images(db_path, image_dir, camera_mode=pycolmap.CameraMode.PER_IMAGE, image_names=names,
+                           options=reader)
     pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
 
