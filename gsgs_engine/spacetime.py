@@ -106,7 +106,7 @@ class SpacetimeModel(GaussianModel):
     @classmethod
     def from_points(cls, points: np.ndarray, colors: np.ndarray | None, max_sh_degree: int,
                     initial_opacity: float = 0.1, times: np.ndarray | None = None,
-                    t_scale: float | np.ndarray = 0.25) -> "SpacetimeModel":
+                    t_scale: float = 0.25) -> "SpacetimeModel":
         """3DGS initialisation from points seen across time: each point's time becomes its t_center.
 
         Points of different times are spaced with the k-NN of their own time's cloud, so a point

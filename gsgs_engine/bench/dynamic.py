@@ -63,9 +63,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
-    parser.add_argument("--static-background", action="store_true",
-                        help="4D with --init mvs: points on pixels still over the clip start as one time-constant "
-                             "set (gsgs train --static-background)")
 
 
 def render_scene(data_dir: Path, ring: int, frames: int, size: int, samples: int) -> None:
@@ -170,7 +167,7 @@ def bench_rig(scene, choice: str = "auto", log=print) -> dict:
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
                       log=print, lpips: bool = True, rig: str = "auto", techniques: str | None = None,
-                      models=VARIANTS, static_background: bool = False) -> dict:
+                      models=VARIANTS) -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
     from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
@@ -191,8 +188,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
 
     def config(n_iters: int) -> TrainConfig:
         return TrainConfig(iters=n_iters, sh_degree=sh_degree, backend=backend, seed=seed, init=init,
-                           random_init_points=init_points, checkpoint_every=0, novel_view_near=near,
-                           static_background=static_background)
+                           random_init_points=init_points, checkpoint_every=0, novel_view_near=near)
 
     t0 = time.perf_counter()
     _warm_up(backend, scene.test[0].camera)
@@ -380,15 +376,14 @@ def run(args) -> int:
         run_dir = out if len(counts) == 1 else out / f"cameras_{n}"
         results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
                                     args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips,
-                                    rig=args.rig, techniques=args.techniques, models=models,
-                                    static_background=args.static_background)
+                                    rig=args.rig, techniques=args.techniques, models=models)
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
                             "resolution": [first.width, first.height], "iters": args.iters,
                             "per_frame_iters": args.per_frame_iters, "init": args.init,
                             "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
-                            "techniques": args.techniques or "none", "static_background": args.static_background,
+                            "techniques": args.techniques or "none",
                             "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
                             "lpips": "none" if args.no_lpips else "vgg",
                             "metric": "PSNR / SSIM / LPIPS on the test cameras, averaged over every test view "

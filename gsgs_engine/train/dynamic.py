@@ -20,7 +20,6 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.gaussians import GaussianModel, InitInfo, scene_bounds_from_cameras
-from gsgs_engine.init.static_split import camera_medians, moving_point_mask
 from gsgs_engine.spacetime import SpacetimeModel, gaussians_at
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import (DensifyConfig, DensifyStats, _replace_param, clone_and_split_rows,
@@ -35,10 +34,6 @@ T_SCALE_LR = 1e-2
 MOTION_LR = 1.6e-3  # x scene extent
 OMEGA_LR = 1e-3
 INIT_T_SCALE_FRAMES = 2.0  # initial temporal scale = this many frame spacings
-# init points of the still background (TrainConfig.static_background): temporal centre mid-clip and a scale
-# that keeps the temporal opacity above exp(-(0.5 / 5)^2) = 0.99 over the whole clip
-STILL_T_CENTER = 0.5
-STILL_T_SCALE = 5.0
 RANDOM_INIT_T_SCALE = 0.25
 
 
@@ -112,36 +107,22 @@ def _per_frame_mvs(scene, frames: dict, config: TrainConfig, t_scale: float, log
     per_frame = replace(base, max_points=max(base.max_points // len(frames), 1000),
                         min_points=max(base.min_points // len(frames), 100),
                         fallback_points=max(base.fallback_points // len(frames), 500))
-    pts_all, cols_all, t_all, s_all, methods = [], [], [], [], []
+    pts_all, cols_all, t_all, methods = [], [], [], []
     quiet = lambda msg: None  # noqa: E731 - one line per frame below instead of one per view
-    medians = camera_medians(frames) if config.static_background and len(frames) >= 2 else None
-    n_still = 0
-    # every frame's stereo sees the same still background: one frame's copy of it (the middle one) is kept
-    keep_still_of = list(frames)[len(frames) // 2]
     for k, (t, views) in enumerate(frames.items()):
         pts, cols, method, _ = dense_and_sparse_points(scene, views, seed=config.seed + k, config=per_frame,
                                                         log=quiet)
-        pts, cols = np.asarray(pts, np.float32), np.asarray(cols, np.float32)
-        still = ~moving_point_mask(pts, views, medians) if medians is not None else np.zeros(len(pts), bool)
-        if medians is not None and t != keep_still_of:
-            pts, cols, still = pts[~still], cols[~still], still[~still]
-        n_still += int(still.sum())
-        pts_all.append(pts)
-        cols_all.append(cols)
-        # still points: one set centred in the clip, visible at every time; the others at their frame
-        t_all.append(np.where(still, STILL_T_CENTER, t).astype(np.float32))
-        s_all.append(np.where(still, STILL_T_SCALE, t_scale).astype(np.float32))
+        pts_all.append(np.asarray(pts, np.float32))
+        cols_all.append(np.asarray(cols, np.float32))
+        t_all.append(np.full(len(pts), t, dtype=np.float32))
         methods.append(method)
-        log(f"4D init: frame t={t:.3f}: {len(pts)} points ({method}, {len(views)} views"
-            + (f"; {int(still.sum())} on still pixels" if medians is not None else "") + ")")
+        log(f"4D init: frame t={t:.3f}: {len(pts)} points ({method}, {len(views)} views)")
     n = int(sum(len(p) for p in pts_all))
     model = SpacetimeModel.from_points(np.concatenate(pts_all), np.concatenate(cols_all), config.sh_degree,
-                                       times=np.concatenate(t_all), t_scale=np.concatenate(s_all))
+                                       times=np.concatenate(t_all), t_scale=t_scale)
     kinds = ", ".join(f"{m} x{methods.count(m)}" for m in sorted(set(methods)))
-    split = (f"; {n_still} on pixels still over the clip start time-constant (centre {STILL_T_CENTER}, scale "
-             f"{STILL_T_SCALE:g})" if medians is not None else "")
     return model, InitInfo("mvs", n, f"{n} multi-view-stereo + SfM points, per frame over {len(frames)} frames "
-                                     f"({kinds}; temporal centre = the frame's time, scale {t_scale:.3f}{split})")
+                                     f"({kinds}; temporal centre = the frame's time, scale {t_scale:.3f})")
 
 
 # -- densification that respects time -----------------------------------------------------------

@@ -51,9 +51,6 @@ class TrainConfig:
     min_init_points: int = 100
     random_init_points: int = 5000
     mvs_max_side: int = MVSConfig.max_side  # init "mvs": working size of the plane sweep (longest side, px)
-    # 4D init "mvs": points on pixels that keep their colour over the clip start as one time-constant set
-    # (gsgs_engine.init.static_split) instead of a copy per frame
-    static_background: bool = False
     densify: bool = True
     # coarse-to-fine (the idea of DashGaussian): the first `coarse_fraction` of the steps render the training
     # view at `coarse_scale` of its size against its area-averaged photo; 0 = full resolution throughout
