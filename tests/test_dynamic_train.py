@@ -305,7 +305,8 @@ def test_mvs_init_runs_the_plane_sweep_per_frame(clip):
 
 @pytest.mark.slow  # a few seconds of stereo and six steps through the CLI
 def test_prior_auto_on_a_video_runs_the_4d_recipe(clip, tmp_path):
-    """--prior auto on a multi-view video: per-frame dense init and per-camera exposure (effect_plan's 4D recipe)."""
+    """--prior auto on a multi-view video: per-frame dense init, per-camera exposure and, with few cameras, dropout
+    and opacity decay (effect_plan's 4D recipe)."""
     import json
 
     from gsgs_engine.cli import main
@@ -313,6 +314,7 @@ def test_prior_auto_on_a_video_runs_the_4d_recipe(clip, tmp_path):
     assert main(["train", str(clip), "--out", str(tmp_path / "run"), "--iters", "6", "--prior", "auto"]) == 0
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["init"]["method"] == "mvs" and "per frame" in metrics["init"]["reason"]
-    assert metrics["plan"]["techniques"] == [{"name": "exposure", "options": {}}]
+    # a clip of a few cameras: the few-camera 4D recipe (effect_plan.AUTO_4D_FEW_TECHNIQUES)
+    assert [t["name"] for t in metrics["plan"]["techniques"]] == ["dropout", "opacity_decay", "exposure"]
     exposure = metrics["techniques"]["exposure"]
     assert exposure["cameras"] == len({k for k in exposure["per_camera"]}) >= 2  # one correction per camera

@@ -201,7 +201,15 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert plan(make_scene(n_train=24))["techniques"].enabled is False  # dense: plain optimisation
     assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
     video = plan_effects(make_scene(times=[0.0, 0.3, 0.6, 1.0]), TrainConfig(), AUTO, SH1, log=lambda m: None)
-    assert video["techniques"].value == ["exposure"] and "4D" in video["techniques"].reason  # the 4D recipe
+    # the 4D recipe: one camera a frame here, so the few-camera one (dropout and opacity decay too)
+    assert video["techniques"].value == ["dropout", "opacity_decay", "exposure"]
+    assert "4D" in video["techniques"].reason and video["techniques"].measured["cameras_per_frame"] == 1
+    rig = plan_effects(make_scene(n_train=16, times=[0.0] * 8 + [1.0] * 8), TrainConfig(), AUTO, SH1,
+                       log=lambda m: None)  # 8 cameras filming 2 moments
+    assert rig["techniques"].value == ["exposure"] and rig["techniques"].measured["cameras_per_frame"] == 8
+    from gsgs_engine.train.techniques.catalogue import parse_techniques
+
+    assert [t["name"] for t in parse_techniques(video["techniques"].value, "x")] == video["techniques"].value
     assert video["init"].value == "mvs" and "per frame" in video["init"].reason
     assert plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]), replace(AUTO, prior="none"))["techniques"].value == []
     named = plan(make_scene(n_train=24), replace(AUTO, prior="none", techniques=["dropout"]))["techniques"]
