@@ -556,16 +556,11 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
                                        "name (--techniques) run")
     elif effects["time"].enabled:
         per_frame = cameras_per_frame(views)
-        if per_frame <= AUTO_4D_FEW_CAMERAS:
-            effects["techniques"] = Effect("techniques", True, list(AUTO_4D_FEW_TECHNIQUES),
-                                           f"4D scene, {per_frame} cameras a frame: per-camera exposure with the "
-                                           "per-frame dense init, " + AUTO_4D_FEW_MEASURED,
-                                           measured={"cameras_per_frame": per_frame})
-        else:
-            effects["techniques"] = Effect("techniques", True, list(AUTO_4D_TECHNIQUES),
-                                           f"4D scene, {per_frame} cameras a frame: per-camera exposure with the "
-                                           "per-frame dense init, " + AUTO_4D_MEASURED,
-                                           measured={"cameras_per_frame": per_frame})
+        few = per_frame <= AUTO_4D_FEW_CAMERAS
+        effects["techniques"] = Effect("techniques", True, list(AUTO_4D_FEW_TECHNIQUES if few else AUTO_4D_TECHNIQUES),
+                                       f"4D scene, {per_frame} cameras a frame: per-camera exposure with the per-frame "
+                                       "dense init, " + (AUTO_4D_FEW_MEASURED if few else AUTO_4D_MEASURED),
+                                       measured={"cameras_per_frame": per_frame})
     elif sparse:
         effects["techniques"] = Effect("techniques", True, list(AUTO_TECHNIQUES),
                                        "sparse: " + sparse_why + "; the measured weights-free recipe "
