@@ -52,6 +52,58 @@ def test_dropout_is_unbiased_and_ramps():
     assert d.mean().item() == pytest.approx(o.mean().item(), rel=0.01)  # unbiased mean opacity
 
 
+def test_density_guided_dropout_drops_crowds_more_and_stays_unbiased():
+    from gsgs_engine.train.techniques.dropout import guided_dropout_opacities, neighbourhood_density
+
+    g = torch.Generator().manual_seed(0)
+    crowd = torch.randn(4000, 3, generator=g) * 0.01  # a tight cluster
+    spread = torch.rand(4000, 3, generator=g) * 10.0 - 5.0  # the same count over a large box
+    means = torch.cat([crowd, spread])
+    density = neighbourhood_density(means)
+    assert density.shape == (8000,) and bool(((density >= 0) & (density <= 1)).all())
+    assert density[:4000].mean() > 0.7 > 0.3 > density[4000:].mean()
+    # scale-free: the same layout in micrometres or kilometres gives the same percentiles
+    assert torch.equal(neighbourhood_density(means * 1e-6), density)
+    assert torch.equal(neighbourhood_density(means * 1e6), density)
+
+    o = torch.full((8000,), 0.5)
+    dropped_crowd = dropped_spread = 0.0
+    total = torch.zeros(8000)
+    for seed in range(50):
+        d = guided_dropout_opacities(o, 0.2, density, torch.Generator().manual_seed(seed))
+        dropped_crowd += (d[:4000] == 0).float().mean().item() / 50
+        dropped_spread += (d[4000:] == 0).float().mean().item() / 50
+        total += d / 50
+    assert dropped_crowd > 2 * dropped_spread
+    assert (dropped_crowd + dropped_spread) / 2 == pytest.approx(0.2, abs=0.01)  # the schedule's mean rate
+    assert total.mean().item() == pytest.approx(0.5, rel=0.01)  # unbiased mean opacity
+    assert guided_dropout_opacities(o, 0.0, density, g) is o
+
+
+def test_density_guided_dropout_survives_degenerate_centres():
+    from gsgs_engine.train.techniques.dropout import guided_dropout_opacities, nearness, neighbourhood_density
+    from test_trainer import look_at
+
+    same = torch.zeros(500, 3)  # every centre at one point
+    assert torch.isfinite(neighbourhood_density(same)).all()
+    bad = torch.randn(500, 3)
+    bad[::7] = float("nan")
+    bad[1::7] = float("inf")
+    density = neighbourhood_density(bad)
+    assert torch.isfinite(density).all() and density.shape == (500,)
+    cam = look_at((4.0, 0.0, 0.0))
+    near = nearness(bad, cam)
+    assert torch.isfinite(near).all() and bool((near[::7] == 0).all())
+    behind = nearness(torch.tensor([[10.0, 0.0, 0.0]]), cam)  # behind the camera: never "near"
+    assert behind.tolist() == [0.0]
+    d = guided_dropout_opacities(torch.full((500,), 0.5), 0.2, 0.85 * density + 0.15 * near, torch.Generator())
+    assert torch.isfinite(d).all()
+    assert neighbourhood_density(torch.zeros(1, 3)).tolist() == [0.5]
+    with pytest.raises(GsgsError, match="guide must be one of"):
+        from gsgs_engine.train.techniques.dropout import GaussianDropout
+        GaussianDropout(guide="depth")
+
+
 # -- opacity decay ----------------------------------------------------------------------------
 def test_decay_logits_match_the_factor_and_stay_finite():
     from gsgs_engine.train.techniques.opacity_decay import decay_opacity_logits
@@ -193,17 +245,30 @@ def test_count_control_cap_is_respected_and_lowers_the_threshold_when_few():
 ALL = "count_control,dropout,binocular:start_fraction=0.3,opacity_decay"
 
 
-def _run(tmp_path, until=None, resume=False, max_gaussians=None):
+def _run(tmp_path, until=None, resume=False, max_gaussians=None, techniques=ALL):
     from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
 
     trainer = make_trainer(iters=40, densify=True, checkpoint_every=20, tmp_path=tmp_path)
     if max_gaussians is not None:
         trainer.config.densify_config.max_gaussians = max_gaussians
     trainer.setup(resume=resume)
-    for t in make_techniques(parse_techniques(ALL)):
+    for t in make_techniques(parse_techniques(techniques)):
         trainer.add_technique(t)
     trainer.train(until=until)
     return trainer
+
+
+def test_resume_with_density_guided_dropout_is_bit_identical(tmp_path):
+    spec = ALL.replace("dropout", "dropout:guide=density")
+    straight = _run(tmp_path / "a", techniques=spec)
+    _run(tmp_path / "b", until=20, techniques=spec)
+    resumed = _run(tmp_path / "b", resume=True, techniques=spec)
+    assert resumed.step == straight.step == 40
+    for name, p in straight.model.params.items():
+        assert torch.equal(p, resumed.model.params[name]), name
+    uniform = _run(tmp_path / "c")
+    assert not torch.equal(uniform.model.params["means"], straight.model.params["means"])
+    assert straight.techniques[1].report()["guide"] == "density"
 
 
 # 100_000: above the count control's budget (1000 here), which then lowers the cap at install: the checkpoint must

@@ -23,7 +23,8 @@ from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
 #: name -> (class, one line for --help); the order is the order techniques are added in
 TECHNIQUES = {
     "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
-    "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian)"),
+    "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian; "
+                                 "guide=density drops crowded Gaussians near the camera more, after D2GS)"),
     "binocular": (BinocularConsistency, "shifted-camera disparity-warp self-consistency (Binocular3DGS)"),
     "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
     "coregularisation": (CoRegularisation, "a second field trained alongside, co-regularised at pseudo views and "

@@ -7,6 +7,14 @@ first step to `max_rate` at the last. Gaussians that a few others hide get gradi
 single Gaussian can carry a training pixel alone. Evaluation renders (`Trainer.render`) use
 every Gaussian at its own opacity.
 
+`guide=density` (after D2GS's depth-and-density guided dropout) keeps the mean rate of the schedule
+but shares it out unevenly: a Gaussian's drop probability is p x s_i / mean(s), where the score s_i
+mixes how crowded its neighbourhood is (its voxel's Gaussian count, as a percentile; 0.85) and how
+near the rendering camera it is (0.15). Crowded clusters near the cameras are where a few views
+overfit; lone Gaussians far away are the ones a sparse capture can least afford to lose. The
+neighbourhood counts are refreshed every `DENSITY_REFRESH` steps and whenever the Gaussian count
+changes (they are checkpointed, so a resumed run uses the same ones).
+
 The mask is drawn from the trainer's seeded CPU generator (`trainer.torch_gen`), which the
 trainer checkpoints: a run is deterministic and resumes bit-identically.
 """
@@ -19,6 +27,11 @@ from gsgs_engine import GsgsError
 from gsgs_engine.train.technique import StepContext, Technique
 
 DEFAULT_MAX_RATE = 0.2  # DropGaussian's final drop rate
+GUIDES = ("uniform", "density")
+DENSITY_WEIGHT = 0.85  # D2GS's weight of density against nearness to the camera
+DENSITY_REFRESH = 100  # steps between recounts of the neighbourhoods (densification's own interval)
+VOXEL_OCCUPANCY = 8.0  # voxel size chosen so that an even spread would put this many Gaussians in each
+MAX_GUIDED_RATE = 0.9  # no Gaussian is dropped with a higher probability than this
 
 
 def drop_rate(step: int, iters: int, max_rate: float = DEFAULT_MAX_RATE) -> float:
@@ -34,16 +47,98 @@ def dropout_opacities(opacities: torch.Tensor, rate: float, generator: torch.Gen
     return opacities * keep.reshape(-1, *([1] * (opacities.ndim - 1))) / (1.0 - rate)
 
 
+def percentiles(values: torch.Tensor) -> torch.Tensor:
+    """Each value's mid-rank percentile in [0, 1] (ties share one): scale-free and deterministic."""
+    ordered, _ = torch.sort(values)
+    below = torch.searchsorted(ordered, values, right=False)
+    up_to = torch.searchsorted(ordered, values, right=True)
+    return (below + up_to).to(torch.float32) / (2.0 * max(values.numel(), 1))
+
+
+def neighbourhood_density(means: torch.Tensor) -> torch.Tensor:
+    """Percentile of each Gaussian's voxel count; voxels sized from the robust bounding box.
+
+    The box spans the 2nd-98th percentiles of the centres (so a few far Gaussians do not make the
+    voxels huge) and the voxel edge is chosen so an even spread would put VOXEL_OCCUPANCY
+    Gaussians in each; centres outside the box fall in the voxels beyond it. Non-finite centres
+    count as alone.
+    """
+    n = means.shape[0]
+    if n < 2:
+        return torch.full((n,), 0.5)
+    x = means.detach().to("cpu", torch.float64)
+    finite = torch.isfinite(x).all(dim=1)
+    if not bool(finite.any()):
+        return torch.full((n,), 0.5)
+    sample = x[finite][:: max(1, int(finite.sum()) // 4096)]
+    lo = torch.quantile(sample, 0.02, dim=0)
+    hi = torch.quantile(sample, 0.98, dim=0)
+    extent = torch.clamp(hi - lo, min=1e-9 * float(torch.clamp((hi - lo).max(), min=1e-30)))
+    edge = float((extent.prod() * VOXEL_OCCUPANCY / n) ** (1.0 / 3.0))
+    edge = max(edge, 1e-30)
+    cells = torch.floor((torch.where(finite[:, None], x, lo) - lo) / edge).clamp(-2**20, 2**20).to(torch.int64)
+    cells -= cells.min(dim=0).values
+    span = cells.max(dim=0).values + 1
+    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    _, inverse, counts = torch.unique(key, return_inverse=True, return_counts=True)
+    count = counts[inverse].to(torch.float32)
+    count[~finite] = 1.0
+    return percentiles(count)
+
+
+def nearness(means: torch.Tensor, camera) -> torch.Tensor:
+    """1 for the nearest Gaussians in front of `camera`, 0 for the farthest (robust 2-98% range)."""
+    R = torch.as_tensor(camera.R, dtype=torch.float32)
+    t = torch.as_tensor(camera.t, dtype=torch.float32)
+    z = means.detach().to("cpu", torch.float32) @ R[2] + t[2]
+    z = torch.nan_to_num(z, nan=float("inf"), posinf=float("inf"), neginf=float("inf"))
+    ok = torch.isfinite(z) & (z > 0)
+    if not bool(ok.any()):
+        return torch.zeros_like(z)
+    sample = z[ok][:: max(1, int(ok.sum()) // 4096)]
+    near, far = torch.quantile(sample, 0.02), torch.quantile(sample, 0.98)
+    return torch.where(ok, ((far - z) / torch.clamp(far - near, min=1e-12)).clamp(0.0, 1.0), torch.zeros_like(z))
+
+
+def guided_dropout_opacities(opacities: torch.Tensor, rate: float, score: torch.Tensor,
+                             generator: torch.Generator) -> torch.Tensor:
+    """opacities * keep_i / (1 - p_i) with p_i = rate * score_i / mean(score) (at most MAX_GUIDED_RATE).
+
+    Unbiased per Gaussian; the mean drop probability is `rate` unless the cap clips it.
+    """
+    if rate <= 0.0:
+        return opacities
+    mean = float(score.mean()) if score.numel() else 0.0
+    p = (rate * score / mean) if mean > 0 else torch.full_like(score, rate)
+    p = p.clamp(0.0, MAX_GUIDED_RATE)
+    keep = (torch.rand(opacities.shape[0], generator=generator) >= p).to(torch.float32)
+    factor = (keep / (1.0 - p)).to(opacities.device, opacities.dtype)
+    return opacities * factor.reshape(-1, *([1] * (opacities.ndim - 1)))
+
+
 class GaussianDropout(Technique):
     name = "dropout"
 
-    def __init__(self, max_rate: float = DEFAULT_MAX_RATE):
+    def __init__(self, max_rate: float = DEFAULT_MAX_RATE, guide: str = "uniform"):
         if not 0.0 <= max_rate < 1.0:
             raise GsgsError(f"dropout: the final drop rate must be in [0, 1) (got {max_rate})")
+        if guide not in GUIDES:
+            raise GsgsError(f"dropout: guide must be one of {', '.join(GUIDES)} (got {guide!r}; "
+                            "e.g. dropout:guide=density)")
         self.max_rate = float(max_rate)
+        self.guide = guide
         self.trainer = None
         self.renders_dropped = 0
         self.last_rate = 0.0
+        self._density = None  # percentile of each Gaussian's neighbourhood count (guide=density)
+        self._density_step = 0
+
+    def _density_for(self, means: torch.Tensor, step: int) -> torch.Tensor:
+        stale = self._density is None or self._density.shape[0] != means.shape[0]
+        if stale or step - self._density_step >= DENSITY_REFRESH:
+            self._density = neighbourhood_density(means)
+            self._density_step = step
+        return self._density
 
     def install(self, trainer) -> None:
         self.trainer = trainer
@@ -55,15 +150,25 @@ class GaussianDropout(Technique):
         if rate <= 0.0:
             return inputs
         self.renders_dropped += 1
-        return {**inputs, "opacities": dropout_opacities(inputs["opacities"], rate, tr.torch_gen)}
+        if self.guide == "uniform" or ctx.camera is None:
+            return {**inputs, "opacities": dropout_opacities(inputs["opacities"], rate, tr.torch_gen)}
+        density = self._density_for(inputs["means"], ctx.step)
+        score = DENSITY_WEIGHT * density + (1.0 - DENSITY_WEIGHT) * nearness(inputs["means"], ctx.camera)
+        return {**inputs, "opacities": guided_dropout_opacities(inputs["opacities"], rate, score, tr.torch_gen)}
 
     def state_dict(self) -> dict:
-        return {"renders_dropped": self.renders_dropped, "last_rate": self.last_rate}
+        state = {"renders_dropped": self.renders_dropped, "last_rate": self.last_rate}
+        if self._density is not None:
+            state.update(density=self._density.clone(), density_step=self._density_step)
+        return state
 
     def load_state_dict(self, state: dict) -> None:
         self.renders_dropped = int(state.get("renders_dropped", 0))
         self.last_rate = float(state.get("last_rate", 0.0))
+        self._density = state.get("density")
+        self._density_step = int(state.get("density_step", 0))
 
     def report(self) -> dict:
-        return {"max_rate": self.max_rate, "schedule": "linear 0 -> max_rate over the run, training renders only",
+        return {"max_rate": self.max_rate, "guide": self.guide,
+                "schedule": "linear 0 -> max_rate over the run, training renders only",
                 "renders_dropped": self.renders_dropped, "final_rate": round(self.last_rate, 4)}
