@@ -75,6 +75,21 @@ def test_binocular_scale_is_checked():
             BinocularConsistency(scale=bad)
 
 
+def test_binocular_every_k_steps_renders_the_shifted_view_on_those_steps_only():
+    from gsgs_engine.train.techniques.binocular import BinocularConsistency
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    trainer = make_trainer(iters=9)
+    trainer.setup()
+    bino = trainer.add_technique(make_techniques(parse_techniques("binocular:every=3:start_fraction=0"))[0])
+    trainer.train()
+    assert bino.start == 1 and bino.steps == 3  # steps 1, 4 and 7
+    assert bino.report()["every"] == 3 and trainer.nan_steps_skipped == 0
+    for bad in (0, -2, 1.5, "2"):
+        with pytest.raises(GsgsError, match="every must be a whole number"):
+            BinocularConsistency(every=bad)
+
+
 def test_coarse_to_fine_renders_the_first_steps_smaller_then_full_size():
     trainer = make_trainer(iters=8, densify=True, coarse_fraction=0.5, coarse_scale=0.5)
     trainer.setup()

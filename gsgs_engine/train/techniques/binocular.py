@@ -124,7 +124,10 @@ class BinocularConsistency(Technique):
     def __init__(self, weight: float = DEFAULT_WEIGHT, smooth_weight: float = DEFAULT_SMOOTH_WEIGHT,
                  baseline_fraction: float = DEFAULT_BASELINE_FRACTION, start_fraction: float = DEFAULT_START_FRACTION,
                  max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION,
-                 scale: float = DEFAULT_SCALE):
+                 scale: float = DEFAULT_SCALE, every: int = 1):
+        if not (isinstance(every, int) and every >= 1):
+            raise GsgsError(f"binocular: every must be a whole number of steps >= 1 (got {every!r})")
+        self.every = every
         if not 0.0 < scale <= 1.0:
             raise GsgsError(f"binocular: the shifted view's render scale must be in (0, 1] (got {scale})")
         self.scale = float(scale)
@@ -158,7 +161,7 @@ class BinocularConsistency(Technique):
             raise GsgsError(f"binocular: the baseline must be a positive distance (got {self.max_baseline})")
 
     def loss_terms(self, ctx: StepContext) -> dict | None:
-        if ctx.step < self.start:
+        if ctx.step < self.start or (ctx.step - self.start) % self.every:
             return None
         tr = ctx.trainer
         u = torch.rand(2, generator=tr.torch_gen)
@@ -194,4 +197,5 @@ class BinocularConsistency(Technique):
         return {"weight": self.weight, "smooth_weight": self.smooth_weight, "max_baseline": self.max_baseline,
                 "baseline_fraction": self.baseline_fraction, "scene_depth": self.scene_depth,
                 "rig_baseline": self.rig_baseline, "rig_fraction": self.rig_fraction, "scale": self.scale,
+                "every": self.every,
                 "start_step": self.start, "steps": self.steps, "last_valid_fraction": round(self.last_valid, 4)}
