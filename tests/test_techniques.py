@@ -80,17 +80,43 @@ def test_density_guided_dropout_drops_crowds_more_and_stays_unbiased():
     assert guided_dropout_opacities(o, 0.0, density, g) is o
 
 
+def test_anchor_dropout_drops_whole_neighbourhoods_unbiased():
+    from gsgs_engine.train.techniques.dropout import anchor_dropout_opacities, voxel_cells
+
+    g = torch.Generator().manual_seed(1)
+    means = torch.rand(20_000, 3, generator=g)
+    cells = voxel_cells(means)
+    assert cells.shape == (20_000,) and int(cells.min()) == 0
+    counts = torch.bincount(cells)
+    assert 4 <= counts.float().mean().item() <= 16  # about VOXEL_OCCUPANCY on an even spread
+    o = torch.rand(20_000, generator=g)
+    d = anchor_dropout_opacities(o, 0.2, cells, torch.Generator().manual_seed(2))
+    dropped = (d == 0)
+    # a voxel goes whole or not at all
+    per_cell = torch.zeros(len(counts)).index_add_(0, cells, dropped.float())
+    assert bool(((per_cell == 0) | (per_cell == counts.float())).all())
+    assert abs(dropped.float().mean().item() - 0.2) < 0.02
+    assert torch.allclose(d[~dropped], o[~dropped] / 0.8)
+    assert anchor_dropout_opacities(o, 0.0, cells, g) is o
+
+
 def test_density_guided_dropout_survives_degenerate_centres():
     from gsgs_engine.train.techniques.dropout import guided_dropout_opacities, nearness, neighbourhood_density
     from test_trainer import look_at
 
+    from gsgs_engine.train.techniques.dropout import voxel_cells
+
     same = torch.zeros(500, 3)  # every centre at one point
     assert torch.isfinite(neighbourhood_density(same)).all()
+    assert int(voxel_cells(same).max()) == 0  # one voxel
     bad = torch.randn(500, 3)
     bad[::7] = float("nan")
     bad[1::7] = float("inf")
     density = neighbourhood_density(bad)
     assert torch.isfinite(density).all() and density.shape == (500,)
+    cells = voxel_cells(bad)
+    lone = torch.bincount(cells)[cells[:: 7]]
+    assert lone.tolist() == [1] * len(lone)  # a non-finite centre is alone in its voxel
     cam = look_at((4.0, 0.0, 0.0))
     near = nearness(bad, cam)
     assert torch.isfinite(near).all() and bool((near[::7] == 0).all())
@@ -258,8 +284,9 @@ def _run(tmp_path, until=None, resume=False, max_gaussians=None, techniques=ALL)
     return trainer
 
 
-def test_resume_with_density_guided_dropout_is_bit_identical(tmp_path):
-    spec = ALL.replace("dropout", "dropout:guide=density")
+@pytest.mark.parametrize("guide", ["density", "anchor"])
+def test_resume_with_guided_dropout_is_bit_identical(tmp_path, guide):
+    spec = ALL.replace("dropout", f"dropout:guide={guide}")
     straight = _run(tmp_path / "a", techniques=spec)
     _run(tmp_path / "b", until=20, techniques=spec)
     resumed = _run(tmp_path / "b", resume=True, techniques=spec)
@@ -268,7 +295,7 @@ def test_resume_with_density_guided_dropout_is_bit_identical(tmp_path):
         assert torch.equal(p, resumed.model.params[name]), name
     uniform = _run(tmp_path / "c")
     assert not torch.equal(uniform.model.params["means"], straight.model.params["means"])
-    assert straight.techniques[1].report()["guide"] == "density"
+    assert straight.techniques[1].report()["guide"] == guide
 
 
 # 100_000: above the count control's budget (1000 here), which then lowers the cap at install: the checkpoint must

@@ -15,6 +15,10 @@ overfit; lone Gaussians far away are the ones a sparse capture can least afford 
 neighbourhood counts are refreshed every `DENSITY_REFRESH` steps and whenever the Gaussian count
 changes (they are checkpointed, so a resumed run uses the same ones).
 
+`guide=anchor` (after DropAnSH-GS's anchor dropout) drops whole neighbourhoods, the same voxels,
+at the schedule's rate: a hole the size of a neighbourhood must be filled by Gaussians elsewhere,
+where dropping single Gaussians lets their neighbours cover for them.
+
 The mask is drawn from the trainer's seeded CPU generator (`trainer.torch_gen`), which the
 trainer checkpoints: a run is deterministic and resumes bit-identically.
 """
@@ -27,7 +31,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.train.technique import StepContext, Technique
 
 DEFAULT_MAX_RATE = 0.2  # DropGaussian's final drop rate
-GUIDES = ("uniform", "density")
+GUIDES = ("uniform", "density", "anchor")
 DENSITY_WEIGHT = 0.85  # D2GS's weight of density against nearness to the camera
 DENSITY_REFRESH = 100  # steps between recounts of the neighbourhoods (densification's own interval)
 VOXEL_OCCUPANCY = 8.0  # voxel size chosen so that an even spread would put this many Gaussians in each
@@ -55,35 +59,52 @@ def percentiles(values: torch.Tensor) -> torch.Tensor:
     return (below + up_to).to(torch.float32) / (2.0 * max(values.numel(), 1))
 
 
-def neighbourhood_density(means: torch.Tensor) -> torch.Tensor:
-    """Percentile of each Gaussian's voxel count; voxels sized from the robust bounding box.
+def voxel_cells(means: torch.Tensor) -> torch.Tensor:
+    """Each Gaussian's voxel as an index 0..M-1; voxels sized from the robust bounding box.
 
     The box spans the 2nd-98th percentiles of the centres (so a few far Gaussians do not make the
     voxels huge) and the voxel edge is chosen so an even spread would put VOXEL_OCCUPANCY
-    Gaussians in each; centres outside the box fall in the voxels beyond it. Non-finite centres
-    count as alone.
+    Gaussians in each; centres outside the box fall in the voxels beyond it. A non-finite centre
+    gets a voxel of its own.
     """
     n = means.shape[0]
-    if n < 2:
-        return torch.full((n,), 0.5)
     x = means.detach().to("cpu", torch.float64)
     finite = torch.isfinite(x).all(dim=1)
-    if not bool(finite.any()):
-        return torch.full((n,), 0.5)
+    if n < 2 or not bool(finite.any()):
+        return torch.arange(n)
     sample = x[finite][:: max(1, int(finite.sum()) // 4096)]
     lo = torch.quantile(sample, 0.02, dim=0)
     hi = torch.quantile(sample, 0.98, dim=0)
     extent = torch.clamp(hi - lo, min=1e-9 * float(torch.clamp((hi - lo).max(), min=1e-30)))
-    edge = float((extent.prod() * VOXEL_OCCUPANCY / n) ** (1.0 / 3.0))
-    edge = max(edge, 1e-30)
+    edge = max(float((extent.prod() * VOXEL_OCCUPANCY / n) ** (1.0 / 3.0)), 1e-30)
     cells = torch.floor((torch.where(finite[:, None], x, lo) - lo) / edge).clamp(-2**20, 2**20).to(torch.int64)
     cells -= cells.min(dim=0).values
     span = cells.max(dim=0).values + 1
     key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    _, inverse, counts = torch.unique(key, return_inverse=True, return_counts=True)
-    count = counts[inverse].to(torch.float32)
-    count[~finite] = 1.0
-    return percentiles(count)
+    key[~finite] = -1 - torch.arange(int((~finite).sum()))  # alone, below every real voxel's key
+    return torch.unique(key, return_inverse=True)[1]
+
+
+def neighbourhood_density(means: torch.Tensor, cells: torch.Tensor | None = None) -> torch.Tensor:
+    """Percentile of each Gaussian's voxel count (`voxel_cells`): 1 in the most crowded voxels."""
+    n = means.shape[0]
+    if n < 2:
+        return torch.full((n,), 0.5)
+    cells = voxel_cells(means) if cells is None else cells
+    counts = torch.bincount(cells)
+    return percentiles(counts[cells].to(torch.float32))
+
+
+def anchor_dropout_opacities(opacities: torch.Tensor, rate: float, cells: torch.Tensor,
+                             generator: torch.Generator) -> torch.Tensor:
+    """Whole voxels (a Gaussian and its neighbours: DropAnSH-GS's anchors) dropped with probability
+    `rate`, the kept ones scaled by 1 / (1 - rate): unbiased, as the uniform mask."""
+    if rate <= 0.0:
+        return opacities
+    n_cells = int(cells.max()) + 1 if cells.numel() else 0
+    keep_cell = (torch.rand(n_cells, generator=generator) >= rate).to(torch.float32)
+    factor = (keep_cell[cells] / (1.0 - rate)).to(opacities.device, opacities.dtype)
+    return opacities * factor.reshape(-1, *([1] * (opacities.ndim - 1)))
 
 
 def nearness(means: torch.Tensor, camera) -> torch.Tensor:
@@ -130,15 +151,16 @@ class GaussianDropout(Technique):
         self.trainer = None
         self.renders_dropped = 0
         self.last_rate = 0.0
-        self._density = None  # percentile of each Gaussian's neighbourhood count (guide=density)
+        self._cells = None  # each Gaussian's voxel (guides density and anchor), refreshed as DENSITY_REFRESH says
+        self._density = None  # percentile of each Gaussian's voxel count (guide=density)
         self._density_step = 0
 
-    def _density_for(self, means: torch.Tensor, step: int) -> torch.Tensor:
-        stale = self._density is None or self._density.shape[0] != means.shape[0]
+    def _refresh(self, means: torch.Tensor, step: int) -> None:
+        stale = self._cells is None or self._cells.shape[0] != means.shape[0]
         if stale or step - self._density_step >= DENSITY_REFRESH:
-            self._density = neighbourhood_density(means)
+            self._cells = voxel_cells(means)
+            self._density = neighbourhood_density(means, self._cells)
             self._density_step = step
-        return self._density
 
     def install(self, trainer) -> None:
         self.trainer = trainer
@@ -152,19 +174,23 @@ class GaussianDropout(Technique):
         self.renders_dropped += 1
         if self.guide == "uniform" or ctx.camera is None:
             return {**inputs, "opacities": dropout_opacities(inputs["opacities"], rate, tr.torch_gen)}
-        density = self._density_for(inputs["means"], ctx.step)
-        score = DENSITY_WEIGHT * density + (1.0 - DENSITY_WEIGHT) * nearness(inputs["means"], ctx.camera)
+        self._refresh(inputs["means"], ctx.step)
+        if self.guide == "anchor":
+            return {**inputs, "opacities": anchor_dropout_opacities(inputs["opacities"], rate, self._cells,
+                                                                    tr.torch_gen)}
+        score = DENSITY_WEIGHT * self._density + (1.0 - DENSITY_WEIGHT) * nearness(inputs["means"], ctx.camera)
         return {**inputs, "opacities": guided_dropout_opacities(inputs["opacities"], rate, score, tr.torch_gen)}
 
     def state_dict(self) -> dict:
         state = {"renders_dropped": self.renders_dropped, "last_rate": self.last_rate}
-        if self._density is not None:
-            state.update(density=self._density.clone(), density_step=self._density_step)
+        if self._cells is not None:
+            state.update(cells=self._cells.clone(), density=self._density.clone(), density_step=self._density_step)
         return state
 
     def load_state_dict(self, state: dict) -> None:
         self.renders_dropped = int(state.get("renders_dropped", 0))
         self.last_rate = float(state.get("last_rate", 0.0))
+        self._cells = state.get("cells")
         self._density = state.get("density")
         self._density_step = int(state.get("density_step", 0))
 
