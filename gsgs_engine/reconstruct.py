@@ -67,11 +67,10 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     if config.init == "mvs" and not scene.has_time and not (
             resume and checkpoint_dir is not None and ckpt.latest_checkpoint(checkpoint_dir) is not None):
         # dense initialisation: multi-view stereo over the training views (known poses) + their SfM points
-        from gsgs_engine.init.mvs import MVSConfig, dense_initial_model
+        from gsgs_engine.init.mvs import trainer_dense_init
 
         t0 = time.perf_counter()
-        initial, init_info = dense_initial_model(scene, trainer.train_views, config.sh_degree, seed=config.seed,
-                                                 config=MVSConfig(max_side=config.mvs_max_side), log=log)
+        initial, init_info = trainer_dense_init(trainer, log=log)
         trainer.phase_seconds["init"] += time.perf_counter() - t0  # stereo, SfM points, initial Gaussians
     trainer.setup(resume=resume, initial_model=initial, init_info=init_info)
     if setup_trainer is not None:  # the orchestration adds the run's techniques here

@@ -99,11 +99,9 @@ def _subscene(scene, train_idx: list[int], test_idx: list[int]):
 def _static_mvs_model(trainer):
     """(initial_model, init_info) of a static baseline with --init mvs: the dense init gsgs train makes for a
     still (the 4D trainer makes its per-frame one itself)."""
-    from gsgs_engine.init.mvs import MVSConfig, dense_initial_model
+    from gsgs_engine.init.mvs import trainer_dense_init
 
-    cfg = trainer.config
-    return dense_initial_model(trainer.scene, trainer.train_views, cfg.sh_degree, seed=cfg.seed,
-                               config=MVSConfig(max_side=cfg.mvs_max_side), log=lambda msg: None)
+    return trainer_dense_init(trainer, log=lambda msg: None)
 
 
 def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, region_fn=None,

@@ -377,6 +377,14 @@ def dense_initial_model(scene, train_views: list, sh_degree: int, seed: int = 0,
     return model, InitInfo(method, len(points), reason)
 
 
+def trainer_dense_init(trainer, log: Callable[[str], None] = print):
+    """`dense_initial_model` of a static trainer's scene and training views, at its config's seed, SH degree
+    and sweep size (what `gsgs train --init mvs` starts from)."""
+    cfg = trainer.config
+    return dense_initial_model(trainer.scene, trainer.train_views, cfg.sh_degree, seed=cfg.seed,
+                               config=MVSConfig(max_side=cfg.mvs_max_side), log=log)
+
+
 def dense_and_sparse_points(scene, train_views: list, seed: int = 0, config: MVSConfig | None = None,
                             use_sfm: bool = True, log: Callable[[str], None] = print):
     """(points, colours, method, reason): MVS points of the training views plus their SfM points (see
