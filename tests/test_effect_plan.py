@@ -199,6 +199,14 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     tc, pc = apply_effect_plan(few, TrainConfig(), AUTO)
     assert pc.techniques == list(AUTO_TECHNIQUES)
     assert plan(make_scene(n_train=24))["techniques"].enabled is False  # dense: plain optimisation
+    # a forward-facing rig: the same recipe with density-guided dropout (measured on LLFF), recorded as such
+    from gsgs_engine.effect_plan import AUTO_FORWARD_TECHNIQUES
+
+    front = plan(make_scene(n_train=4, forward=True))
+    assert front["rig"].value == "forward-facing" and front["techniques"].value == list(AUTO_FORWARD_TECHNIQUES)
+    assert "density-guided" in front["techniques"].reason
+    assert [t.split(":")[0] for t in AUTO_FORWARD_TECHNIQUES] == list(AUTO_TECHNIQUES)  # one option changed only
+    assert apply_effect_plan(front, TrainConfig(), AUTO)[1].techniques == list(AUTO_FORWARD_TECHNIQUES)
     assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
     video = plan_effects(make_scene(times=[0.0, 0.3, 0.6, 1.0]), TrainConfig(), AUTO, SH1, log=lambda m: None)
     # the 4D recipe: one camera a frame here, so the few-camera one (dropout and opacity decay too)
