@@ -139,7 +139,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
 
     settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-               "init", "random_init_points", "mvs_max_side", "densify", "max_gaussians", "prior", "prior_settings",
+               "init", "random_init_points", "mvs_max_side", "mvs_flow", "densify", "max_gaussians", "prior", "prior_settings",
                "coarse_fraction", "coarse_scale",
                "resolution_scale", "max_side", "background", "preset", "effects", "techniques"}
     unknown = sorted(set(settings) - allowed)
@@ -147,7 +147,8 @@ def config_from_settings(settings: dict) -> TrainConfig:
         raise GsgsError(f"job.json: unknown training settings {unknown}; known: {sorted(allowed)}")
     cfg = TrainConfig()
     for key in ("iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
-                "init", "random_init_points", "mvs_max_side", "densify", "coarse_fraction", "coarse_scale"):
+                "init", "random_init_points", "mvs_max_side", "mvs_flow", "densify", "coarse_fraction",
+                "coarse_scale"):
         if key in settings and settings[key] not in (None, "auto"):
             setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
     if "max_gaussians" in settings:

@@ -63,6 +63,7 @@ TRAIN = {
     "init": Rule("choice", choices=("auto", "sfm", "points", "random", "mvs"), flag="--init"),
     "random_init_points": Rule("int", 1, 2_000_000, flag="--init-points"),
     "mvs_max_side": Rule("int", 16, 8192, flag="--mvs-size"),
+    "mvs_flow": Rule("choice", choices=("off", "dis", "deepflow"), flag="--mvs-flow"),
     "densify": Rule("bool"),
     "coarse_fraction": Rule("float", 0, 1, flag="--coarse-fraction"),
     "coarse_scale": Rule("float", 0, 1, lo_open=True, flag="--coarse-scale"),

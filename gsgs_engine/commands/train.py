@@ -52,6 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mvs-size", type=int, default=None,
                         help="--init mvs: longest side (px) of the images the plane sweep works on (default 256; "
                              "reduced further to keep the sweep within its budget)")
+    parser.add_argument("--mvs-flow", choices=("off", "dis", "deepflow"), default="off",
+                        help="--init mvs: also triangulate dense optical-flow matches between the training views "
+                             "(OpenCV DIS or DeepFlow, forward-backward checked) and fuse them with the stereo points "
+                             "(default %(default)s)")
     parser.add_argument("--coarse-fraction", type=float, default=0.0,
                         help="coarse-to-fine: the first FRACTION of the steps render the training views at "
                              "--coarse-scale of their size (default %(default)s: off)")
@@ -117,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
                          init=args.init, coarse_fraction=args.coarse_fraction, coarse_scale=args.coarse_scale)
     if args.mvs_size is not None:
         config.mvs_max_side = args.mvs_size
+    config.mvs_flow = args.mvs_flow
     if args.init_points is not None:
         if args.init_points < 1:
             raise GsgsError(f"--init-points must be at least 1 (got {args.init_points})")

@@ -32,6 +32,7 @@ import torch.nn.functional as F
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
+from gsgs_engine.init.views import nearest_sources, working_view
 
 
 @dataclass
@@ -54,10 +55,17 @@ class MVSConfig:
     fallback_points: int = 20_000
     depth_chunk: int = 16  # depth planes warped at once (memory)
     alpha_threshold: float = 0.5  # RGBA views: pixels below this alpha are background, never points
+    # optical-flow matches triangulated with the known poses, fused with the stereo points before the max_points
+    # subsample (gsgs_engine.init.flow_matches): None (off), "dis" or "deepflow"
+    flow: str | None = None
 
     def validate(self) -> "MVSConfig":
         if self.max_side < 16 or self.num_depths < 3 or self.window < 3 or self.window % 2 == 0:
             raise GsgsError(f"mvs: max_side >= 16, num_depths >= 3 and an odd window >= 3 are needed, got {self}")
+        from gsgs_engine.init.flow_matches import FLOW_METHODS
+
+        if self.flow is not None and self.flow not in FLOW_METHODS:
+            raise GsgsError(f"mvs: flow must be off or one of {', '.join(FLOW_METHODS)}, got {self.flow!r}")
         if self.max_points < 1 or (self.min_consistent is not None and self.min_consistent < 0) or self.max_sources < 1:
             raise GsgsError(f"mvs: max_points >= 1, min_consistent >= 0 and max_sources >= 1 are needed, got {self}")
         return self
@@ -93,25 +101,6 @@ def working_side(views: list, cfg: MVSConfig) -> int:
     if per_pixel * mean_area * (side / longest) ** 2 > cfg.sweep_budget:
         side = int(longest * math.sqrt(cfg.sweep_budget / (per_pixel * mean_area)))
     return max(16, side)
-
-
-def _working_view(view, max_side: int, alpha_threshold: float) -> tuple[Camera, np.ndarray, np.ndarray]:
-    import cv2
-
-    cam = view.camera
-    factor = min(1.0, max_side / max(cam.width, cam.height))
-    small = cam.scaled(factor)
-    rgba = view.load_rgba()
-    rgb = view.image()
-    size = (small.width, small.height)
-    if (small.width, small.height) != (cam.width, cam.height):
-        rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-    if rgba.shape[2] == 4:
-        alpha = rgba[..., 3] if size == (cam.width, cam.height) else cv2.resize(rgba[..., 3], size, interpolation=cv2.INTER_AREA)
-        mask = alpha >= alpha_threshold
-    else:
-        mask = np.ones((small.height, small.width), dtype=bool)
-    return small, np.ascontiguousarray(rgb, dtype=np.float32), mask
 
 
 def depth_range(camera: Camera, sparse_points: np.ndarray | None, bounds: tuple[np.ndarray, np.ndarray] | None,
@@ -201,23 +190,10 @@ def sweep_costs(ref: _WorkView, src: _WorkView, inv_depths: torch.Tensor, cfg: M
     return out
 
 
-def _choose_sources(index: int, views: list[_WorkView], max_sources: int) -> list[int]:
-    """Other views ranked by viewing-direction similarity, then by centre distance."""
-    ref = views[index].camera
-    scored = []
-    for j, other in enumerate(views):
-        if j == index:
-            continue
-        cos = float(ref.R[2] @ other.camera.R[2])
-        dist = float(np.linalg.norm(ref.center - other.camera.center))
-        scored.append((-cos, dist, j))
-    return [j for _, _, j in sorted(scored)[:max_sources]]
-
-
 def estimate_depth(index: int, views: list[_WorkView], cfg: MVSConfig) -> tuple[torch.Tensor, torch.Tensor]:
     """Depth (H, W; NaN where rejected) and best aggregated NCC of view `index`."""
     ref = views[index]
-    sources = _choose_sources(index, views, cfg.max_sources)
+    sources = nearest_sources(index, [v.camera for v in views], cfg.max_sources)
     inv = torch.linspace(1.0 / ref.far, 1.0 / ref.near, cfg.num_depths, dtype=torch.float64)
     costs = torch.stack([sweep_costs(ref, views[j], inv, cfg) for j in sources])  # (S, D, H, W)
     k = max(1, len(sources) // 2)
@@ -319,7 +295,7 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
     views = []
     side = working_side(train_views, cfg)
     for view in train_views:
-        cam, rgb, mask = _working_view(view, side, cfg.alpha_threshold)
+        cam, rgb, mask = working_view(view, side, cfg.alpha_threshold)
         lo, hi = depth_range(view.camera, sparse_points, bounds, near, far)
         rgb_t = torch.from_numpy(rgb)
         gray = rgb_t @ torch.tensor([0.299, 0.587, 0.114])
@@ -345,6 +321,14 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
             stats["views"].append({"name": view.camera.name, "size": [view.camera.width, view.camera.height],
                                    "near": view.near, "far": view.far,
                                    "matched": int(torch.isfinite(depths[i]).sum()), "consistent": int(flat.sum())})
+    n_stereo = int(sum(len(p) for p in pts_all))
+    if cfg.flow is not None and len(views) >= 2:
+        from gsgs_engine.init.flow_matches import FlowConfig, flow_points
+
+        fp = flow_points(train_views, FlowConfig(method=cfg.flow, alpha_threshold=cfg.alpha_threshold), log=log)
+        pts_all.append(fp.points)
+        cols_all.append(fp.colors)
+        stats["flow"] = {k: v for k, v in fp.stats.items() if k != "config"}
     points = np.concatenate(pts_all) if pts_all else np.zeros((0, 3), np.float32)
     colors = np.concatenate(cols_all) if cols_all else np.zeros((0, 3), np.float32)
     n_mvs = len(points)
@@ -352,14 +336,16 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
         pick = torch.randperm(n_mvs, generator=generator)[:cfg.max_points].sort().values.numpy()
         points, colors = points[pick], colors[pick]
     method, reason = "mvs", (f"{len(points)} multi-view-stereo points from the {len(views)} training views "
-                             f"({n_mvs} geometrically consistent at {views[0].camera.width}x{views[0].camera.height})")
+                             f"({n_stereo} geometrically consistent at {views[0].camera.width}x{views[0].camera.height}"
+                             + (f", {n_mvs - n_stereo} optical-flow matches ({cfg.flow})" if "flow" in stats else "")
+                             + ")")
     if len(points) < cfg.min_points:
         fp, fc = frustum_points(views, cfg.fallback_points, generator)
         why = f"stereo kept {len(points)} points (< {cfg.min_points})" if len(views) >= 2 else "one view: no stereo"
         method = "mvs+fallback" if len(points) else "fallback"
         reason = f"{why}; added {len(fp)} points spread through the views' frustums between near and far"
         points, colors = np.concatenate([points, fp]), np.concatenate([colors, fc])
-    stats.update({"mvs_points": n_mvs, "points": len(points), "seconds": round(time.perf_counter() - t0, 2)})
+    stats.update({"mvs_points": n_stereo, "flow_points": n_mvs - n_stereo, "points": len(points), "seconds": round(time.perf_counter() - t0, 2)})
     log(f"mvs: {method}: {len(points)} points in {stats['seconds']:.1f} s ({reason})")
     return DenseInit(points.astype(np.float32), np.clip(colors, 0, 1).astype(np.float32), method, reason, stats)
 
@@ -382,7 +368,13 @@ def trainer_dense_init(trainer, log: Callable[[str], None] = print):
     and sweep size (what `gsgs train --init mvs` starts from)."""
     cfg = trainer.config
     return dense_initial_model(trainer.scene, trainer.train_views, cfg.sh_degree, seed=cfg.seed,
-                               config=MVSConfig(max_side=cfg.mvs_max_side), log=log)
+                               config=MVSConfig(max_side=cfg.mvs_max_side, flow=mvs_flow_method(cfg.mvs_flow)),
+                               log=log)
+
+
+def mvs_flow_method(setting: str) -> str | None:
+    """The `mvs_flow` setting ("off", "dis", "deepflow") -> MVSConfig.flow."""
+    return None if setting in (None, "off", "none") else str(setting)
 
 
 def dense_and_sparse_points(scene, train_views: list, seed: int = 0, config: MVSConfig | None = None,

@@ -101,9 +101,9 @@ def _per_frame_mvs(scene, frames: dict, config: TrainConfig, t_scale: float, log
     and the fallback are shared out over the frames, so a clip starts no larger than a still would."""
     from dataclasses import replace
 
-    from gsgs_engine.init.mvs import MVSConfig, dense_and_sparse_points
+    from gsgs_engine.init.mvs import MVSConfig, dense_and_sparse_points, mvs_flow_method
 
-    base = MVSConfig(max_side=config.mvs_max_side)
+    base = MVSConfig(max_side=config.mvs_max_side, flow=mvs_flow_method(config.mvs_flow))
     per_frame = replace(base, max_points=max(base.max_points // len(frames), 1000),
                         min_points=max(base.min_points // len(frames), 100),
                         fallback_points=max(base.fallback_points // len(frames), 500))

@@ -51,6 +51,7 @@ class TrainConfig:
     min_init_points: int = 100
     random_init_points: int = 5000
     mvs_max_side: int = MVSConfig.max_side  # init "mvs": working size of the plane sweep (longest side, px)
+    mvs_flow: str = "off"  # init "mvs": optical-flow matches fused with the stereo points ("off", "dis", "deepflow")
     densify: bool = True
     # coarse-to-fine (the idea of DashGaussian): the first `coarse_fraction` of the steps render the training
     # view at `coarse_scale` of its size against its area-averaged photo; 0 = full resolution throughout
@@ -619,6 +620,8 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"coarse_scale must be in (0, 1] (got {cfg.coarse_scale})")
     if cfg.mvs_max_side < 16:
         raise GsgsError(f"--mvs-size must be at least 16 pixels (got {cfg.mvs_max_side})")
+    if cfg.mvs_flow not in ("off", "dis", "deepflow"):
+        raise GsgsError(f"--mvs-flow must be off, dis or deepflow (got {cfg.mvs_flow!r})")
     if not (np.isfinite(cfg.novel_view_near) and cfg.novel_view_near > 0):
         raise GsgsError(f"novel_view_near must be a positive distance (got {cfg.novel_view_near})")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
