@@ -49,7 +49,7 @@ constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
 // Vector helpers are always inlined, so their 32-byte arguments never cross a call boundary.
 #pragma GCC diagnostic ignored "-Wpsabi"
 
-// One visible Gaussian, in depth order, everything the tile loops read (one 48-byte record).
+// One visible Gaussian, in depth order, everything the tile loops read (one 52-byte record).
 struct Splat {
   float mx, my;     // means2d (pixel coordinates)
   float A, B, C;    // conic (inverse 2D covariance)
@@ -57,6 +57,7 @@ struct Splat {
   float r, g, b;
   float depth;
   float ext_x, ext_y;  // half-extent of the region where alpha >= 1/255 (+margin); < 0: never
+  float power_floor;   // exponent below which alpha < 1/255 (power_floor())
 };
 
 // Eight float lanes (GCC/Clang vector extensions): one AVX register in the AVX2 clone, two SSE
@@ -124,6 +125,15 @@ GSGS_INLINE vf exp_nonpositive(vf x) {
 // the same skip decisions bit for bit.
 GSGS_INLINE vf gaussian_power(float A, float B, float C, vf dx, float dy) {
   return -0.5f * (A * dx * dx + C * dy * dy) - B * dx * dy;
+}
+
+// The exponent below which no lane can reach alpha >= 1/255: o * exp(power) < 1/255 for power < ln(1 / (255 o)).
+// A millesimal margin in the exponent covers the rounding of exp_nonpositive (~1 ulp), so an 8-pixel step whose
+// powers all lie below it changes nothing in either pass and is skipped before its exp is evaluated: results are
+// bit-identical to evaluating it. (Opacities below 1/255 never reach a tile: their alpha extent is empty.)
+float power_floor(float opacity) {
+  if (!(opacity >= kMinAlpha)) return std::numeric_limits<float>::infinity();  // never drawn (NaN too)
+  return static_cast<float>(std::log(static_cast<double>(kMinAlpha) / static_cast<double>(opacity))) - 1e-3f;
 }
 
 // Row (or column) index range [lo, hi] inside a tile starting at pixel `start` whose centres lie
@@ -303,6 +313,7 @@ GSGS_INLINE void forward_tile_body(const Splat* splats, const int32_t* ranks, in
         if (!any(active[v])) continue;  // these 8 pixels are finished
         const vf dx = s.mx - px[h];
         const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        if (!any(power >= s.power_floor)) continue;  // no lane reaches alpha 1/255 (see power_floor)
         const vf oG = s.opacity * exp_nonpositive(power);
         const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
         const vi valid = active[v] & (power <= 0.0f) & (alpha >= kMinAlpha);
@@ -405,6 +416,7 @@ GSGS_INLINE void backward_tile_body(const Splat* splats, const int32_t* ranks, c
         if (!any(listed)) continue;
         const vf dx = s.mx - px[h];
         const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        if (!any(listed & (power >= s.power_floor))) continue;  // no listed lane can reach alpha 1/255
         const vf G = exp_nonpositive(power);
         const vf oG = s.opacity * G;
         const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
@@ -568,8 +580,9 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
       const int64_t g = b.order[s];
       Splat& sp = splats[s];
       sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
-                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f};
+                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
       alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
+      sp.power_floor = power_floor(sp.opacity);
       tile_rect(sp.mx, sp.my, rad[g], tiles_x, tiles_y, &rects[s]);
       clip_to_alpha_extent(sp, &rects[s]);
     }
@@ -727,8 +740,9 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
       const int64_t g = ord[s];
       Splat& sp = splats[s];
       sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
-                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f};
+                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
       alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
+      sp.power_floor = power_floor(sp.opacity);
     }
   });
 
