@@ -100,6 +100,24 @@ def test_anchor_dropout_drops_whole_neighbourhoods_unbiased():
     assert anchor_dropout_opacities(o, 0.0, cells, g) is o
 
 
+def test_guided_dropout_without_a_camera_keeps_its_guide():
+    """A step context without a camera (the trainer always names one): anchor still drops whole voxels, density
+    falls back to the neighbourhood term alone, neither to the uniform mask."""
+    from gsgs_engine.train.techniques.dropout import GaussianDropout, voxel_cells
+
+    trainer = make_trainer(iters=100)
+    trainer.setup()
+    n = trainer.model.num_gaussians
+    inputs = {"means": trainer.model.means.detach(), "opacities": torch.full((n,), 0.5)}
+    out = GaussianDropout(guide="anchor").render_inputs(ctx_for(trainer, 100), inputs)["opacities"]
+    cells = voxel_cells(inputs["means"])
+    dropped = torch.zeros(int(cells.max()) + 1).index_add_(0, cells, (out == 0).float())
+    counts = torch.bincount(cells).float()
+    assert bool(((dropped == 0) | (dropped == counts)).all()) and bool((out == 0).any())
+    dense = GaussianDropout(guide="density").render_inputs(ctx_for(trainer, 100), inputs)["opacities"]
+    assert torch.isfinite(dense).all() and bool((dense == 0).any())
+
+
 def test_density_guided_dropout_survives_degenerate_centres():
     from gsgs_engine.train.techniques.dropout import guided_dropout_opacities, nearness, neighbourhood_density
     from test_trainer import look_at

@@ -172,13 +172,15 @@ class GaussianDropout(Technique):
         if rate <= 0.0:
             return inputs
         self.renders_dropped += 1
-        if self.guide == "uniform" or ctx.camera is None:
+        if self.guide == "uniform":
             return {**inputs, "opacities": dropout_opacities(inputs["opacities"], rate, tr.torch_gen)}
         self._refresh(inputs["means"], ctx.step)
         if self.guide == "anchor":
             return {**inputs, "opacities": anchor_dropout_opacities(inputs["opacities"], rate, self._cells,
                                                                     tr.torch_gen)}
-        score = DENSITY_WEIGHT * self._density + (1.0 - DENSITY_WEIGHT) * nearness(inputs["means"], ctx.camera)
+        # the trainer always names the step's camera; a caller without one gets the density term alone
+        near = nearness(inputs["means"], ctx.camera) if ctx.camera is not None else self._density
+        score = DENSITY_WEIGHT * self._density + (1.0 - DENSITY_WEIGHT) * near
         return {**inputs, "opacities": guided_dropout_opacities(inputs["opacities"], rate, score, tr.torch_gen)}
 
     def state_dict(self) -> dict:
