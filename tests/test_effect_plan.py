@@ -193,11 +193,16 @@ def test_dense_vs_sparse_views():
 def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     from gsgs_engine.effect_plan import AUTO_TECHNIQUES
 
-    few = plan(make_scene(n_train=4))
-    assert few["techniques"].enabled and few["techniques"].value == list(AUTO_TECHNIQUES)
+    from gsgs_engine.effect_plan import AUTO_ORBIT_TECHNIQUES
+
+    few = plan(make_scene(n_train=4))  # an object orbit: the shifted view every second step
+    assert few["rig"].value == "object orbit" and few["techniques"].value == list(AUTO_ORBIT_TECHNIQUES)
     assert few["techniques"].source == "auto" and "sparse" in few["techniques"].reason
+    assert "every second step" in few["techniques"].reason
     tc, pc = apply_effect_plan(few, TrainConfig(), AUTO)
-    assert pc.techniques == list(AUTO_TECHNIQUES)
+    assert pc.techniques == list(AUTO_ORBIT_TECHNIQUES)
+    shell = plan(make_scene(n_train=4), overrides={"rig": "inward"})  # a shell: the base recipe (not measured there)
+    assert shell["techniques"].value == list(AUTO_TECHNIQUES)
     assert plan(make_scene(n_train=24))["techniques"].enabled is False  # dense: plain optimisation
     # a forward-facing rig: the same recipe with density-guided dropout (measured on LLFF), recorded as such
     from gsgs_engine.effect_plan import AUTO_FORWARD_TECHNIQUES
@@ -205,7 +210,8 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     front = plan(make_scene(n_train=4, forward=True))
     assert front["rig"].value == "forward-facing" and front["techniques"].value == list(AUTO_FORWARD_TECHNIQUES)
     assert "density-guided" in front["techniques"].reason
-    assert [t.split(":")[0] for t in AUTO_FORWARD_TECHNIQUES] == list(AUTO_TECHNIQUES)  # one option changed only
+    for recipe in (AUTO_FORWARD_TECHNIQUES, AUTO_ORBIT_TECHNIQUES):  # the same techniques, one option changed
+        assert [t.split(":")[0] for t in recipe] == list(AUTO_TECHNIQUES)
     assert apply_effect_plan(front, TrainConfig(), AUTO)[1].techniques == list(AUTO_FORWARD_TECHNIQUES)
     assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
     video = plan_effects(make_scene(times=[0.0, 0.3, 0.6, 1.0]), TrainConfig(), AUTO, SH1, log=lambda m: None)
