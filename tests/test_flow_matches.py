@@ -81,3 +81,5 @@ def test_fused_into_the_stereo_points_and_recorded():
         MVSConfig(flow="raft").validate()
     with pytest.raises(GsgsError, match="method"):
         FlowConfig(method="raft").validate()
+    with pytest.raises(GsgsError, match="min_sources"):
+        FlowConfig(min_sources=3).validate()

@@ -40,7 +40,7 @@ class FlowConfig:
     reproj_px: float = 1.0  # triangulated point must reproject within this in both views (working pixels)
     min_angle_deg: float = 1.0  # the two rays must meet at this angle or more
     agree_rel: float = 0.01  # two sources' depths must agree within this (relative)
-    min_sources: int = 2  # sources that must agree (1: one pair's checks suffice; two that disagree still drop it)
+    min_sources: int = 2  # 2: two sources must agree; 1: one pair's checks suffice (two that disagree still drop it)
     max_sources: int = 2  # sources per reference view (nearest by viewing direction, then centre distance)
     stride: int = 2  # keep every stride-th pixel in x and y
     alpha_threshold: float = 0.5  # RGBA views: pixels below this alpha are background, never points
@@ -48,8 +48,9 @@ class FlowConfig:
     def validate(self) -> "FlowConfig":
         if self.method not in FLOW_METHODS:
             raise GsgsError(f"flow matches: method must be one of {', '.join(FLOW_METHODS)}, got {self.method!r}")
-        if self.max_side < 16 or self.stride < 1 or self.max_sources < 1 or self.min_sources < 1:
-            raise GsgsError(f"flow matches: max_side >= 16, stride >= 1, max_sources >= 1 and min_sources >= 1 are needed, got {self}")
+        if self.max_side < 16 or self.stride < 1 or self.max_sources < 1 or self.min_sources not in (1, 2):
+            raise GsgsError("flow matches: max_side >= 16, stride >= 1, max_sources >= 1 and min_sources 1 or 2 are "
+                            f"needed, got {self}")
         if not (self.fb_px > 0 and self.reproj_px > 0 and self.agree_rel > 0 and 0 <= self.min_angle_deg < 90):
             raise GsgsError(f"flow matches: positive tolerances and an angle in [0, 90) are needed, got {self}")
         return self
@@ -124,13 +125,12 @@ def pair_depths(ref_cam, src_cam, fwd: np.ndarray, bwd: np.ndarray, pick: np.nda
     ok = forward_backward_ok(fwd, bwd, cfg.fb_px).reshape(-1)[pick]
     pts, angle = triangulate_midpoint(ref_cam, src_cam, uv_a, uv_b)
     ok &= np.isfinite(pts).all(axis=1) & (angle >= cfg.min_angle_deg)
-    depth = np.full(len(pick), np.nan)
+    depths = []
     for cam, uv in ((ref_cam, uv_a), (src_cam, uv_b)):
         proj, z = cam.project(np.nan_to_num(pts))
         ok &= (z > 0) & (np.hypot(*(proj - uv).T) < cfg.reproj_px)
-        if cam is ref_cam:
-            depth = np.where(ok, z, np.nan)
-    return np.where(ok, depth, np.nan)
+        depths.append(z)
+    return np.where(ok, depths[0], np.nan)
 
 
 def combine_depths(d: np.ndarray, agree_rel: float, min_sources: int) -> np.ndarray:
