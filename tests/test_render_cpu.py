@@ -357,3 +357,48 @@ def test_oracle_agrees_with_a_plain_pixel_loop():
             c += T * bg.numpy()
             assert np.allclose(color[y, x].numpy(), c, atol=1e-9)
             assert abs(float(depth[y, x]) - d) < 1e-9 and abs(float(alpha[y, x]) - (1 - T)) < 1e-9
+
+
+_VARIANT_SCRIPT = """
+import sys, torch
+sys.path[:0] = [sys.argv[2]]
+from test_render_cpu import SCENES, _grads, random_scene
+from gsgs_engine.render import cpu_backend
+assert cpu_backend.available(), cpu_backend.unavailable_reason()
+fn = cpu_backend.rasterize_cpu
+out = {}
+for params in SCENES + [dict(seed=9, n=300, width=64, height=48, spread=9.0, opaque_fraction=0.5)]:
+    (color, depth, alpha), grads = _grads(fn, random_scene(**params), params["seed"])
+    out[params["seed"]] = {"color": color, "depth": depth, "alpha": alpha, **grads}
+torch.save(out, sys.argv[1])
+"""
+
+
+def test_every_tile_variant_renders_the_same(cpu, tmp_path):
+    """The kernel's three builds of its tile loops (AVX2 + FMA, AVX2, portable x86-64), each forced in its own
+    process: the two without FMA are bit-identical (same operations lane for lane), the FMA one within rounding."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tests_dir = str(Path(__file__).resolve().parent)
+    results = {}
+    for variant in ("fma", "avx2", "portable"):
+        env = {**os.environ, "GSGS_TILE_VARIANT": variant}
+        env.pop("GSGS_NO_FMA", None)
+        path = tmp_path / f"{variant}.pt"
+        proc = subprocess.run([sys.executable, "-c", _VARIANT_SCRIPT, str(path), tests_dir], env=env,
+                              capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        results[variant] = torch.load(path)
+    # the FMA build rounds differently somewhere: proof that each process ran the variant it was told to
+    assert any(not torch.equal(results["fma"][seed][name], value) for seed, ref in results["avx2"].items()
+               for name, value in ref.items())
+    for seed, ref in results["portable"].items():
+        for name, value in ref.items():
+            assert torch.equal(results["avx2"][seed][name], value), f"seed {seed}: avx2 and portable differ in {name}"
+            fma = results["fma"][seed][name]
+            assert torch.isfinite(fma).all()
+            err = float((fma.double() - value.double()).norm() / value.double().norm().clamp_min(1e-12))
+            assert err < 1e-4, f"seed {seed}: the FMA variant's {name} differs by {err:.3g} (relative)"

@@ -26,6 +26,9 @@
 #include "reusable_buffer.h"
 
 #include <algorithm>
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#include <immintrin.h>
+#endif
 #include <atomic>
 #include <cmath>
 #include <cstdint>
@@ -279,215 +282,39 @@ GSGS_INLINE void reach(const Splat& s, int px0, int py0, int cols, int rows, int
   lane_range(s.my, s.ext_y, py0, rows, r_lo, r_hi);
 }
 
-// Forward of one tile. Per-pixel state lives in lane vectors; each Gaussian updates only the rows
-// (and 8-lane halves) its alpha ellipse reaches, branch-free inside a row.
-GSGS_INLINE void forward_tile_body(const Splat* splats, const int32_t* ranks, int count, int px0, int py0,
-                           int width, int height, const float* background, float* out_color,
-                           float* out_depth, float* out_alpha, float* out_T, int32_t* out_last) {
-  vf T[kVecs], cr[kVecs], cg[kVecs], cb[kVecs], dep[kVecs];
-  vi active[kVecs], last[kVecs];
-  const int rows = std::min(kTile, height - py0);
-  const int cols = std::min(kTile, width - px0);
-  for (int v = 0; v < kVecs; ++v) {
-    T[v] = splat(1.0f);
-    cr[v] = cg[v] = cb[v] = dep[v] = splat(0.0f);
-    last[v] = splat_i(0);
-    for (int i = 0; i < kLanes; ++i) {
-      const int p = v * kLanes + i;
-      active[v][i] = (p / kTile < rows && p % kTile < cols) ? -1 : 0;  // pixels outside the image never blend
-    }
-  }
-  vf px[kVecPerRow];
-  pixel_centres(px0, px);
-
-  for (int j = 0; j < count; ++j) {
-    const Splat s = splats[ranks[j]];
-    int r_lo, r_hi, v_lo = 0, v_hi = -1;
-    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
-    vi stopped = splat_i(0);
-    const vi contributor = splat_i(j + 1);
-    for (int row = r_lo; row <= r_hi; ++row) {
-      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
-      for (int h = v_lo; h <= v_hi; ++h) {
-        const int v = row * kVecPerRow + h;
-        if (!any(active[v])) continue;  // these 8 pixels are finished
-        const vf dx = s.mx - px[h];
-        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
-        if (!any(power >= s.power_floor)) continue;  // no lane reaches alpha 1/255 (see power_floor)
-        const vf oG = s.opacity * exp_nonpositive(power);
-        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
-        const vi valid = active[v] & (power <= 0.0f) & (alpha >= kMinAlpha);
-        const vf test_T = T[v] * (1.0f - alpha);
-        const vi stop = valid & (test_T < kMinTransmittance);
-        const vi add = valid & ~stop;
-        const vf w = select(add, alpha * T[v], splat(0.0f));
-        cr[v] += s.r * w;
-        cg[v] += s.g * w;
-        cb[v] += s.b * w;
-        dep[v] += s.depth * w;
-        T[v] = select(add, test_T, T[v]);
-        last[v] = select_i(add, contributor, last[v]);
-        active[v] &= ~stop;
-        stopped |= stop;
-      }
-    }
-    if (any(stopped)) {  // some pixel just finished: is the whole tile done?
-      vi still = splat_i(0);
-      for (int v = 0; v < kVecs; ++v) still |= active[v];
-      if (!any(still)) break;
-    }
-  }
-
-  for (int y = 0; y < rows; ++y) {
-    for (int x = 0; x < cols; ++x) {
-      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
-      const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
-      const float t = T[v][i];
-      out_color[o * 3 + 0] = cr[v][i] + t * background[0];
-      out_color[o * 3 + 1] = cg[v][i] + t * background[1];
-      out_color[o * 3 + 2] = cb[v][i] + t * background[2];
-      out_depth[o] = dep[v][i];
-      out_alpha[o] = 1.0f - t;
-      out_T[o] = t;
-      out_last[o] = last[v][i];
-    }
-  }
-}
-
-// Backward of one tile: back to front over the tile list, T reconstructed per pixel from the final
-// transmittance; one gradient record (kGradFields floats) per list entry, written to its slot.
-//   C = sum_i c_i a_i T_i + T_N bg,  D = sum_i z_i a_i T_i,  A_out = 1 - T_N
-//   dC/da_i = T_i (c_i - S_i) - T_N bg / (1 - a_i), S_i = colour behind i (S_{i-1} = a_i c_i + (1-a_i) S_i)
-//   dA_out/da_i = T_N / (1 - a_i)
-GSGS_INLINE void backward_tile_body(const Splat* splats, const int32_t* ranks, const int32_t* slots, int count,
-                            int px0, int py0, int width, int height, const float* background,
-                            const float* final_T, const int32_t* last_in, const float* grad_color,
-                            const float* grad_depth, const float* grad_alpha, bool with_depth,
-                            float* entry_grad) {
-  vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
-  vi last[kVecs];
-  const int rows = std::min(kTile, height - py0);
-  const int cols = std::min(kTile, width - px0);
-  for (int v = 0; v < kVecs; ++v) {
-    T[v] = splat(1.0f);
-    Sr[v] = Sg[v] = Sb[v] = Sz[v] = splat(0.0f);
-    gr[v] = gg[v] = gb[v] = gz[v] = K[v] = splat(0.0f);
-    last[v] = splat_i(0);  // pixels outside the image never take part
-  }
-  int max_last = 0;
-  for (int y = 0; y < rows; ++y) {
-    for (int x = 0; x < cols; ++x) {
-      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
-      const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
-      const float t = final_T[o];
-      T[v][i] = t;
-      last[v][i] = last_in[o];
-      gr[v][i] = grad_color[o * 3 + 0];
-      gg[v][i] = grad_color[o * 3 + 1];
-      gb[v][i] = grad_color[o * 3 + 2];
-      gz[v][i] = grad_depth[o];
-      const float bg_dot = grad_color[o * 3 + 0] * background[0] + grad_color[o * 3 + 1] * background[1] +
-                           grad_color[o * 3 + 2] * background[2];
-      K[v][i] = t * (grad_alpha[o] - bg_dot);
-      max_last = std::max(max_last, last_in[o]);
-    }
-  }
-  vf px[kVecPerRow];
-  pixel_centres(px0, px);
-
-  // Entries behind every pixel's last contributor (transmittance spent) get a zero record, no work.
-  for (int j = count - 1; j >= max_last; --j) {
-    std::memset(entry_grad + static_cast<int64_t>(slots[j]) * kGradFields, 0, kGradFields * sizeof(float));
-  }
-  for (int j = std::min(count, max_last) - 1; j >= 0; --j) {
-    float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
-    const Splat s = splats[ranks[j]];
-    int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
-    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
-    vf acc[kGradFields];
-    for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
-    bool touched = false;
-    const vi position = splat_i(j);
-    for (int row = r_lo; row <= r_hi; ++row) {
-      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
-      for (int h = v_lo; h <= v_hi; ++h) {
-        const int v = row * kVecPerRow + h;
-        const vi listed = position < last[v];  // j blended into these pixels' colour (if valid)
-        if (!any(listed)) continue;
-        const vf dx = s.mx - px[h];
-        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
-        if (!any(listed & (power >= s.power_floor))) continue;  // no listed lane can reach alpha 1/255
-        const vf G = exp_nonpositive(power);
-        const vf oG = s.opacity * G;
-        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
-        const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
-        if (!any(valid)) continue;
-        touched = true;
-        const vf one_minus = 1.0f - alpha;  // >= 0.01
-        const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
-        const vf T_before = T[v] * inv_one_minus;
-        const vf w = select(valid, alpha * T_before, splat(0.0f));
-        vf dot = gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]);
-        if (with_depth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
-        const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
-        // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
-        const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
-        const vf dL_dpower = dL_doG * oG;
-        acc[0] += dL_dpower * -(s.A * dx + s.B * dy);
-        acc[1] += dL_dpower * -(s.B * dx + s.C * dy);
-        acc[2] += dL_dpower * (-0.5f * dx * dx);
-        acc[3] += dL_dpower * (-dx * dy);
-        acc[4] += dL_dpower * (-0.5f * dy * dy);
-        acc[5] += gr[v] * w;
-        acc[6] += gg[v] * w;
-        acc[7] += gb[v] * w;
-        acc[8] += dL_doG * G;
-        if (with_depth) acc[9] += gz[v] * w;
-        Sr[v] = select(valid, alpha * s.r + one_minus * Sr[v], Sr[v]);
-        Sg[v] = select(valid, alpha * s.g + one_minus * Sg[v], Sg[v]);
-        Sb[v] = select(valid, alpha * s.b + one_minus * Sb[v], Sb[v]);
-        if (with_depth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
-        T[v] = select(valid, T_before, T[v]);
-      }
-    }
-    if (touched) {
-      hsum8(acc, record);
-      record[8] = hsum(acc[8]);
-      record[9] = hsum(acc[9]);
-    } else {
-      std::memset(record, 0, kGradFields * sizeof(float));
-    }
-  }
-}
-
-// The tile bodies compiled three times: AVX2 with FMA (products and sums contracted: forward and backward
-// 10-20 % faster on a trained LLFF model, docs/speed.md), AVX2, and portable x86-64; picked once per process
-// from the processor's features. Forward and backward of one process always use the same variant, and both
+// The tile bodies (tile_bodies.h) compiled three times: AVX2 with FMA (products and sums contracted: forward and
+// backward 10-20 % faster on a trained LLFF model, docs/speed.md), AVX2, and portable x86-64; picked once per
+// process from the processor's features. Forward and backward of one process always use the same variant, and both
 // evaluate alpha through the same inline functions (gaussian_power, exp_nonpositive), which GCC contracts
 // alike in both; that is relied on, not guaranteed by the language, and the gradient parity tests against the
 // reference check it. GSGS_NO_FMA=1 selects the uncontracted AVX2 variant, bit-identical to the earlier kernel.
 #define GSGS_TILE_ARGS_F const Splat *splats, const int32_t *ranks, int count, int px0, int py0, int width, \
     int height, const float *background, float *out_color, float *out_depth, float *out_alpha, float *out_T, \
     int32_t *out_last
-#define GSGS_TILE_PASS_F splats, ranks, count, px0, py0, width, height, background, out_color, out_depth, \
-    out_alpha, out_T, out_last
 #define GSGS_TILE_ARGS_B const Splat *splats, const int32_t *ranks, const int32_t *slots, int count, int px0, \
     int py0, int width, int height, const float *background, const float *final_T, const int32_t *last_in, \
     const float *grad_color, const float *grad_depth, const float *grad_alpha, bool with_depth, float *entry_grad
-#define GSGS_TILE_PASS_B splats, ranks, slots, count, px0, py0, width, height, background, final_T, last_in, \
-    grad_color, grad_depth, grad_alpha, with_depth, entry_grad
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-__attribute__((target("avx2,fma"), optimize("fp-contract=fast"))) void forward_tile_fma(GSGS_TILE_ARGS_F) {
-  forward_tile_body(GSGS_TILE_PASS_F);
-}
-__attribute__((target("avx2,fma"), optimize("fp-contract=fast"))) void backward_tile_fma(GSGS_TILE_ARGS_B) {
-  backward_tile_body(GSGS_TILE_PASS_B);
-}
-__attribute__((target("avx2"))) void forward_tile_avx2(GSGS_TILE_ARGS_F) { forward_tile_body(GSGS_TILE_PASS_F); }
-__attribute__((target("avx2"))) void backward_tile_avx2(GSGS_TILE_ARGS_B) { backward_tile_body(GSGS_TILE_PASS_B); }
+#define GSGS_TILE_AVX 1
+#pragma GCC push_options
+#pragma GCC target("avx2,fma")
+#pragma GCC optimize("fp-contract=fast")
+namespace isa_fma {
+#include "tile_bodies.h"
+}  // namespace isa_fma
+#pragma GCC pop_options
+#pragma GCC push_options
+#pragma GCC target("avx2")
+namespace isa_avx2 {
+#include "tile_bodies.h"
+}  // namespace isa_avx2
+#pragma GCC pop_options
+#undef GSGS_TILE_AVX
 #endif
-void forward_tile_portable(GSGS_TILE_ARGS_F) { forward_tile_body(GSGS_TILE_PASS_F); }
-void backward_tile_portable(GSGS_TILE_ARGS_B) { backward_tile_body(GSGS_TILE_PASS_B); }
+#define GSGS_TILE_AVX 0
+namespace isa_portable {
+#include "tile_bodies.h"
+}  // namespace isa_portable
 
 using ForwardTileFn = void (*)(GSGS_TILE_ARGS_F);
 using BackwardTileFn = void (*)(GSGS_TILE_ARGS_B);
@@ -496,15 +323,24 @@ struct TileKernels {
   BackwardTileFn backward;
 };
 
+// The best variant the processor runs, or a slower one named by GSGS_TILE_VARIANT=avx2|portable (tests render
+// with each; GSGS_NO_FMA=1 is the older spelling of avx2). A variant the processor cannot run is never chosen.
 const TileKernels& tile_kernels() {
   static const TileKernels chosen = [] {
+    const char* forced = getenv("GSGS_TILE_VARIANT");
+    const bool portable_only = forced != nullptr && std::strcmp(forced, "portable") == 0;
+    const bool no_fma = getenv("GSGS_NO_FMA") != nullptr || (forced != nullptr && std::strcmp(forced, "avx2") == 0);
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
     __builtin_cpu_init();
-    if (getenv("GSGS_NO_FMA") == nullptr && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))
-      return TileKernels{forward_tile_fma, backward_tile_fma};
-    if (__builtin_cpu_supports("avx2")) return TileKernels{forward_tile_avx2, backward_tile_avx2};
+    if (!portable_only && !no_fma && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))
+      return TileKernels{isa_fma::forward_tile, isa_fma::backward_tile};
+    if (!portable_only && __builtin_cpu_supports("avx2"))
+      return TileKernels{isa_avx2::forward_tile, isa_avx2::backward_tile};
+#else
+    (void)portable_only;
+    (void)no_fma;
 #endif
-    return TileKernels{forward_tile_portable, backward_tile_portable};
+    return TileKernels{isa_portable::forward_tile, isa_portable::backward_tile};
   }();
   return chosen;
 }

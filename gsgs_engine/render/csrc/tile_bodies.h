@@ -1,0 +1,190 @@
+// The tile bodies of rasterize_cpu.cpp: included there once per instruction set, each time inside its own
+// namespace under `#pragma GCC target` (AVX2 with FMA, AVX2, portable x86-64), so every variant is compiled for
+// its processor as a whole and may use that processor's instructions (here: one `vptest` for "is any lane set?",
+// where the portable code needs four 64-bit extracts). No include guard: that is the point.
+
+// Whether any of the 8 lanes of a mask is set.
+GSGS_INLINE bool any_lane(vi mask) {
+#if GSGS_TILE_AVX  // set by the includer for the AVX2 variants (GCC does not update __AVX__ for C++ pragmas)
+  const __m256i m = (__m256i)mask;
+  return !_mm256_testz_si256(m, m);
+#else
+  return any(mask);
+#endif
+}
+
+// Forward of one tile. Per-pixel state lives in lane vectors; each Gaussian updates only the rows
+// (and 8-lane halves) its alpha ellipse reaches, branch-free inside a row.
+void forward_tile(GSGS_TILE_ARGS_F) {
+  vf T[kVecs], cr[kVecs], cg[kVecs], cb[kVecs], dep[kVecs];
+  vi active[kVecs], last[kVecs];
+  const int rows = std::min(kTile, height - py0);
+  const int cols = std::min(kTile, width - px0);
+  for (int v = 0; v < kVecs; ++v) {
+    T[v] = splat(1.0f);
+    cr[v] = cg[v] = cb[v] = dep[v] = splat(0.0f);
+    last[v] = splat_i(0);
+    for (int i = 0; i < kLanes; ++i) {
+      const int p = v * kLanes + i;
+      active[v][i] = (p / kTile < rows && p % kTile < cols) ? -1 : 0;  // pixels outside the image never blend
+    }
+  }
+  vf px[kVecPerRow];
+  pixel_centres(px0, px);
+
+  for (int j = 0; j < count; ++j) {
+    const Splat s = splats[ranks[j]];
+    int r_lo, r_hi, v_lo = 0, v_hi = -1;
+    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    vi stopped = splat_i(0);
+    const vi contributor = splat_i(j + 1);
+    for (int row = r_lo; row <= r_hi; ++row) {
+      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      for (int h = v_lo; h <= v_hi; ++h) {
+        const int v = row * kVecPerRow + h;
+        if (!any_lane(active[v])) continue;  // these 8 pixels are finished
+        const vf dx = s.mx - px[h];
+        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        if (!any_lane(power >= s.power_floor)) continue;  // no lane reaches alpha 1/255 (see power_floor)
+        const vf oG = s.opacity * exp_nonpositive(power);
+        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vi valid = active[v] & (power <= 0.0f) & (alpha >= kMinAlpha);
+        const vf test_T = T[v] * (1.0f - alpha);
+        const vi stop = valid & (test_T < kMinTransmittance);
+        const vi add = valid & ~stop;
+        const vf w = select(add, alpha * T[v], splat(0.0f));
+        cr[v] += s.r * w;
+        cg[v] += s.g * w;
+        cb[v] += s.b * w;
+        dep[v] += s.depth * w;
+        T[v] = select(add, test_T, T[v]);
+        last[v] = select_i(add, contributor, last[v]);
+        active[v] &= ~stop;
+        stopped |= stop;
+      }
+    }
+    if (any_lane(stopped)) {  // some pixel just finished: is the whole tile done?
+      vi still = splat_i(0);
+      for (int v = 0; v < kVecs; ++v) still |= active[v];
+      if (!any_lane(still)) break;
+    }
+  }
+
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
+      const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
+      const float t = T[v][i];
+      out_color[o * 3 + 0] = cr[v][i] + t * background[0];
+      out_color[o * 3 + 1] = cg[v][i] + t * background[1];
+      out_color[o * 3 + 2] = cb[v][i] + t * background[2];
+      out_depth[o] = dep[v][i];
+      out_alpha[o] = 1.0f - t;
+      out_T[o] = t;
+      out_last[o] = last[v][i];
+    }
+  }
+}
+
+// Backward of one tile: back to front over the tile list, T reconstructed per pixel from the final
+// transmittance; one gradient record (kGradFields floats) per list entry, written to its slot.
+//   C = sum_i c_i a_i T_i + T_N bg,  D = sum_i z_i a_i T_i,  A_out = 1 - T_N
+//   dC/da_i = T_i (c_i - S_i) - T_N bg / (1 - a_i), S_i = colour behind i (S_{i-1} = a_i c_i + (1-a_i) S_i)
+//   dA_out/da_i = T_N / (1 - a_i)
+void backward_tile(GSGS_TILE_ARGS_B) {
+  vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
+  vi last[kVecs];
+  const int rows = std::min(kTile, height - py0);
+  const int cols = std::min(kTile, width - px0);
+  for (int v = 0; v < kVecs; ++v) {
+    T[v] = splat(1.0f);
+    Sr[v] = Sg[v] = Sb[v] = Sz[v] = splat(0.0f);
+    gr[v] = gg[v] = gb[v] = gz[v] = K[v] = splat(0.0f);
+    last[v] = splat_i(0);  // pixels outside the image never take part
+  }
+  int max_last = 0;
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
+      const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
+      const float t = final_T[o];
+      T[v][i] = t;
+      last[v][i] = last_in[o];
+      gr[v][i] = grad_color[o * 3 + 0];
+      gg[v][i] = grad_color[o * 3 + 1];
+      gb[v][i] = grad_color[o * 3 + 2];
+      gz[v][i] = grad_depth[o];
+      const float bg_dot = grad_color[o * 3 + 0] * background[0] + grad_color[o * 3 + 1] * background[1] +
+                           grad_color[o * 3 + 2] * background[2];
+      K[v][i] = t * (grad_alpha[o] - bg_dot);
+      max_last = std::max(max_last, last_in[o]);
+    }
+  }
+  vf px[kVecPerRow];
+  pixel_centres(px0, px);
+
+  // Entries behind every pixel's last contributor (transmittance spent) get a zero record, no work.
+  for (int j = count - 1; j >= max_last; --j) {
+    std::memset(entry_grad + static_cast<int64_t>(slots[j]) * kGradFields, 0, kGradFields * sizeof(float));
+  }
+  for (int j = std::min(count, max_last) - 1; j >= 0; --j) {
+    float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
+    const Splat s = splats[ranks[j]];
+    int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
+    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    vf acc[kGradFields];
+    for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
+    bool touched = false;
+    const vi position = splat_i(j);
+    for (int row = r_lo; row <= r_hi; ++row) {
+      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      for (int h = v_lo; h <= v_hi; ++h) {
+        const int v = row * kVecPerRow + h;
+        const vi listed = position < last[v];  // j blended into these pixels' colour (if valid)
+        if (!any_lane(listed)) continue;
+        const vf dx = s.mx - px[h];
+        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        if (!any_lane(listed & (power >= s.power_floor))) continue;  // no listed lane can reach alpha 1/255
+        const vf G = exp_nonpositive(power);
+        const vf oG = s.opacity * G;
+        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
+        if (!any_lane(valid)) continue;
+        touched = true;
+        const vf one_minus = 1.0f - alpha;  // >= 0.01
+        const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
+        const vf T_before = T[v] * inv_one_minus;
+        const vf w = select(valid, alpha * T_before, splat(0.0f));
+        vf dot = gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]);
+        if (with_depth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
+        const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
+        // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
+        const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
+        const vf dL_dpower = dL_doG * oG;
+        acc[0] += dL_dpower * -(s.A * dx + s.B * dy);
+        acc[1] += dL_dpower * -(s.B * dx + s.C * dy);
+        acc[2] += dL_dpower * (-0.5f * dx * dx);
+        acc[3] += dL_dpower * (-dx * dy);
+        acc[4] += dL_dpower * (-0.5f * dy * dy);
+        acc[5] += gr[v] * w;
+        acc[6] += gg[v] * w;
+        acc[7] += gb[v] * w;
+        acc[8] += dL_doG * G;
+        if (with_depth) acc[9] += gz[v] * w;
+        Sr[v] = select(valid, alpha * s.r + one_minus * Sr[v], Sr[v]);
+        Sg[v] = select(valid, alpha * s.g + one_minus * Sg[v], Sg[v]);
+        Sb[v] = select(valid, alpha * s.b + one_minus * Sb[v], Sb[v]);
+        if (with_depth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
+        T[v] = select(valid, T_before, T[v]);
+      }
+    }
+    if (touched) {
+      hsum8(acc, record);
+      record[8] = hsum(acc[8]);
+      record[9] = hsum(acc[9]);
+    } else {
+      std::memset(record, 0, kGradFields * sizeof(float));
+    }
+  }
+}
+
