@@ -1,24 +1,26 @@
 """A training time estimate the Train panel states before a job starts.
 
-Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine with this
-build (seed 0, 1000 steps, 2026-11-25, one after another; the helper session's runs paused, this session's
-short unit tests beside some of them), one reference per
-recipe the engine can run, because they differ more than any single factor allows:
+Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine (seed 0, 1000 steps),
+one reference per recipe the engine can run, because they differ more than any single factor allows:
   - plain 3DGS: LLFF flower, 3 views at 504x378, 271 s (157,697 Gaussians: without the count control
-    real photos grow them unchecked);
+    real photos grow them unchecked; 2026-11-25, not re-measured since the kernel's faster step of 2026-11-26,
+    so it errs long);
   - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
-    dropout, binocular shift, no pseudo views): NeRF-synthetic lego, 8 views at 400x400, 201 s;
-  - `--prior auto` on a forward-facing rig (the same plus warp-inpaint pseudo views): LLFF flower at 504x378,
-    449 s with the pseudo views at full size; since they render at half size (`pseudo_scale` 0.5, 2026-11-26)
-    449 x 0.825 = 370 s, 0.825 being this build's train seconds over the pinned f6f2ab9's for the same cell run
-    back to back that day (315 s / 382 s), which keeps the three references on the same day's footing.
+    dropout, the binocular shift every second step, no pseudo views): NeRF-synthetic lego, 8 views at 400x400,
+    161 s (2026-11-26, right after the pinned f6f2ab9's cell, 222 s, on an otherwise idle machine);
+  - `--prior auto` on a forward-facing rig (density-guided dropout, the binocular shift every step, warp-inpaint
+    pseudo views at half size): LLFF flower at 504x378, 347 s (the same afternoon, after f6f2ab9's 531 s).
+  The machine's day moves these by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and 531 s
+  that afternoon); the references of 2026-11-26 are the same afternoon's, back to back.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
 optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, else forward-facing.
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71 (measured
 between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
 Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3
-photos, balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), 2026-11-25: the orbit
-reference gives 250 s; the training job took 262 s, the whole workflow 289 s. It is a rough figure
+photos, balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), 2026-11-26 right after the
+reference cells, nothing else running: the orbit reference gives 200 s (the panel said "~3 min"); the training job
+took 215 s, the whole workflow 246 s (2026-11-25, before the faster kernel step and the orbit recipe's
+binocular view every second step: stated 250 s, trained 262 s, 289 s in all). It is a rough figure
 (scene content, Gaussian counts and the machine's day move it by tens of percent) and the panel says so.
 """
 
@@ -30,8 +32,8 @@ REFERENCE_ITERS = 1000
 # recipe -> (seconds for REFERENCE_ITERS steps, pixels of a training view) measured as above
 REFERENCES = {
     "plain": (271.0, 504 * 378),
-    "orbit": (201.0, 400 * 400),
-    "forward": (370.0, 504 * 378),
+    "orbit": (161.0, 400 * 400),
+    "forward": (347.0, 504 * 378),
 }
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
