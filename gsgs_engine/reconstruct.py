@@ -101,7 +101,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "backend": trainer.backend_used or trainer.config.backend, "backend_requested": trainer.config.backend,
         "device": trainer.device_description, "prior": "none", "sh_degree": trainer.config.sh_degree,
         "init": trainer.init_info.to_dict(), "background": [float(x) for x in trainer.background],
-        "random_background": bool(trainer.config.random_background and scene.has_alpha),
+        "random_background": bool(trainer.config.random_background),
         "resolution": [first.width, first.height], "train_ids": [v.name for v in trainer.train_views],
         "num_train_views": len(trainer.train_views), "num_test_views": len(test_views),
         "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),

@@ -88,7 +88,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
     args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
                      per_frame_iters=3, init="mvs", init_points=60, sh_degree=0, backend="auto", seed=0,
                      threads=0, resolution_scale=1.0, no_lpips=True, rig="auto",
-                     techniques="exposure", models="4d,static_all,static_per_frame")
+                     techniques="exposure", models="4d,static_all,static_per_frame", background="fixed")
     assert run(args) == 0
     every = json.loads((out / "results.json").read_text())["cameras"]
     assert sorted(every) == ["2", "3"]
@@ -140,10 +140,12 @@ def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path)
 
     args = Namespace(cameras="2", out=str(tmp_path / "one"), data=str(pano), ring=10, frames=3, size=64, samples=4,
                      iters=4, per_frame_iters=2, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
-                     threads=0, resolution_scale=1.0, no_lpips=True, rig="orbit", techniques=None, models="4d")
+                     threads=0, resolution_scale=1.0, no_lpips=True, rig="orbit", techniques=None, models="4d",
+                     background="opaque")
     assert run(args) == 0
     results = json.loads((tmp_path / "one" / "results.json").read_text())
     assert "4d" in results and "static_all" not in results and "static_per_frame" not in results
     assert results["rig"]["near"] is None and results["novel_view_near"] == DEFAULT_NEAR  # --rig orbit
+    assert results["background"] == results["setup"]["background"] == "opaque"
     with pytest.raises(GsgsError, match="--models"):
         run(Namespace(**{**vars(args), "models": "4d,nope"}))

@@ -116,12 +116,26 @@ def test_static_vs_dynamic():
 
 def test_rgba_vs_rgb_background():
     rgba, rgb = plan(make_scene(rgba=True)), plan(make_scene(rgba=False))
+    shell = plan(make_scene(rgba=False), overrides={"rig": "inward"})
+    # RGBA: alpha learned. RGB: a fixed background on every rig ("opaque" measured mixed: a setting), the reason
+    # saying what was measured
     assert rgba["background"].value == "transparent" and rgb["background"].value == "fixed"
+    assert shell["background"].value == "fixed" and "opaque" in shell["background"].reason
     assert apply_effect_plan(rgba, TrainConfig(), AUTO)[0].random_background is True
     assert apply_effect_plan(rgb, TrainConfig(random_background=True), AUTO)[0].random_background is False
+    opaque = plan(make_scene(), overrides={"background": "opaque"})
+    assert opaque["background"].value == "opaque" and opaque["background"].enabled
+    assert apply_effect_plan(opaque, TrainConfig(), AUTO)[0].random_background is True
     assert plan(make_scene(rgba=True), overrides={"background": "fixed"})["background"].value == "fixed"
-    with pytest.raises(GsgsError, match="no alpha"):
+    assert plan(make_scene(), overrides={"background": "fixed"})["background"].value == "fixed"
+    # --random-background / the job setting: whichever random background the views allow
+    assert plan(make_scene(rgba=True), overrides={"background": "random"})["background"].value == "transparent"
+    assert plan(make_scene(), PriorConfig(prior="none"), overrides={"background": "random"})["background"].value == \
+        "opaque"
+    with pytest.raises(GsgsError, match="no alpha.*opaque"):
         plan(make_scene(), overrides={"background": "transparent"})
+    with pytest.raises(GsgsError, match="has an alpha channel"):
+        plan(make_scene(rgba=True), overrides={"background": "opaque"})
 
 
 def test_with_and_without_a_depth_source(tmp_path):

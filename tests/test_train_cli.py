@@ -180,7 +180,7 @@ def test_job_settings_become_effect_overrides():
     assert overrides_from_settings({"iters": 5}) == {}
     assert overrides_from_settings({"sh_degree": "auto"}) == {}
     assert overrides_from_settings({"sh_degree": 1, "random_background": True, "effects": "pseudo_views=off"}) == \
-        {"sh_degree": 1, "background": "transparent", "pseudo_views": "off"}
+        {"sh_degree": 1, "background": "random", "pseudo_views": "off"}
     assert overrides_from_settings({"effects": {"depth": "off"}}) == {"depth": "off"}
     with pytest.raises(GsgsError):
         overrides_from_settings({"effects": "colour=7"})

@@ -60,6 +60,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--techniques", default=None,
                         help="sparse-view techniques for every model of the comparison, as gsgs train takes them "
                              "(e.g. exposure,dropout; default none)")
+    parser.add_argument("--background", default="fixed", choices=("fixed", "opaque"),
+                        help="every model's training background: fixed (the scene's) or opaque (a random colour "
+                             "behind each step's render, the photo unchanged: gsgs train --effects background=opaque; "
+                             "measured worse on the 4D model); evaluation always uses the scene's")
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
@@ -165,7 +169,7 @@ def bench_rig(scene, choice: str = "auto", log=print) -> dict:
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
                       log=print, lpips: bool = True, rig: str = "auto", techniques: str | None = None,
-                      models=VARIANTS) -> dict:
+                      models=VARIANTS, background: str = "fixed") -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
     from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
@@ -186,14 +190,15 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
 
     def config(n_iters: int) -> TrainConfig:
         return TrainConfig(iters=n_iters, sh_degree=sh_degree, backend=backend, seed=seed, init=init,
-                           random_init_points=init_points, checkpoint_every=0, novel_view_near=near)
+                           random_init_points=init_points, checkpoint_every=0, novel_view_near=near,
+                           random_background=background == "opaque")
 
     t0 = time.perf_counter()
     _warm_up(backend, scene.test[0].camera)
     log(f"[bench dynamic] rasteriser ready ({time.perf_counter() - t0:.1f}s, not counted in train_seconds)")
     region_fn, region_what = region_masks(scene.test)
     log(f"[bench dynamic] dynamic region: {region_what}")
-    results: dict = {"region": region_what, "rig": layout, "novel_view_near": near}
+    results: dict = {"region": region_what, "rig": layout, "novel_view_near": near, "background": background}
     if "4d" in models:
         trainer = SpacetimeTrainer(scene, config(iters), log=log)
         results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips,
@@ -374,14 +379,15 @@ def run(args) -> int:
         run_dir = out if len(counts) == 1 else out / f"cameras_{n}"
         results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
                                     args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips,
-                                    rig=args.rig, techniques=args.techniques, models=models)
+                                    rig=args.rig, techniques=args.techniques, models=models,
+                                    background=args.background)
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
                             "resolution": [first.width, first.height], "iters": args.iters,
                             "per_frame_iters": args.per_frame_iters, "init": args.init,
                             "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
-                            "techniques": args.techniques or "none",
+                            "techniques": args.techniques or "none", "background": args.background,
                             "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
                             "lpips": "none" if args.no_lpips else "vgg",
                             "metric": "PSNR / SSIM / LPIPS on the test cameras, averaged over every test view "

@@ -62,7 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--coarse-scale", type=float, default=0.5,
                         help="coarse-to-fine: render scale of those first steps (default %(default)s)")
     parser.add_argument("--random-background", action="store_true",
-                        help="RGBA scenes: a random background colour each step (target composited on the same)")
+                        help="a random background colour each step: RGBA scenes composite the target on the same "
+                             "(alpha learned), RGB scenes keep the photo (every pixel learned opaque; "
+                             "= --effects background=opaque)")
     bg = parser.add_mutually_exclusive_group()
     bg.add_argument("--white-background", dest="background", action="store_const", const="white")
     bg.add_argument("--black-background", dest="background", action="store_const", const="black")
@@ -157,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
                 "preset_changed": preset_changed}
         overrides = overrides_from_args(args)
         if args.random_background:
-            overrides["background"] = "transparent"
+            overrides["background"] = "random"
         metrics = train_with_effects(scene, config, prior_config_from_args(args), out, out / "checkpoints",
                                      overrides=overrides, job=job, resume=args.resume, plan=plan)
     except TrainingInterrupted as exc:

@@ -371,7 +371,14 @@ class Trainer:
         return self._order.pop()
 
     def _step_background(self) -> torch.Tensor:
-        if self.config.random_background and self.scene.has_alpha:
+        """This step's background: a random colour with `random_background`, else the scene's.
+
+        RGBA views are re-composited on it (`_target`: alpha is learned, and composites in Blender). RGB views keep
+        their photo, so a see-through splat shows the random colour and costs loss: no pixel of a photo may stay
+        transparent (the effect plan's "opaque" background). With a fixed background the model can make a light
+        wall from faint splats over a white background, which a novel view, whose coverage differs, shows as
+        holes and haze (docs/inward_rigs.md)."""
+        if self.config.random_background:
             return torch.rand(3, generator=self.torch_gen).to(self.device)  # drawn on the CPU: same colours anywhere
         return self.background
 
