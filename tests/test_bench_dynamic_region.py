@@ -88,7 +88,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
     args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
                      per_frame_iters=3, init="mvs", init_points=60, sh_degree=0, backend="auto", seed=0,
                      threads=0, resolution_scale=1.0, no_lpips=True, rig="auto",
-                     techniques="exposure", models="4d,static_all,static_per_frame", background="fixed")
+                     techniques="exposure", models="4d,static_all,static_per_frame", background="mean")
     assert run(args) == 0
     every = json.loads((out / "results.json").read_text())["cameras"]
     assert sorted(every) == ["2", "3"]
@@ -100,6 +100,8 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         assert results["4d"]["init"]["method"] == "mvs" and results["static_all"]["init"]["method"] != "random"
         assert results["rig"]["rig"] in ("object orbit", "forward-facing", "inward shell")
         assert results["novel_view_near"] == (results["rig"]["near"] or DEFAULT_NEAR)
+        # --background mean: the training photos' mean colour, not the loader's white
+        assert results["background"] == "mean" and not np.allclose(results["background_colour"], 1.0)
         for name in ("4d", "static_all", "static_per_frame"):
             r = results[name]
             assert len(r["per_view"]) == 6  # two test cameras x three frames

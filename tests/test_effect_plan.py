@@ -101,7 +101,9 @@ def test_static_vs_dynamic():
     from gsgs_engine.train.dynamic import SpacetimeTrainer, make_trainer
 
     timed = make_scene(times=[0.0, 0.3, 0.6, 1.0])
-    assert scene_for_plan(timed, dynamic) is timed  # the trainer builds the 4D model for it
+    kept = scene_for_plan(timed, dynamic)  # the trainer builds the 4D model for it: the times stay
+    assert kept.has_time and [v.camera.time for v in kept.views] == [v.camera.time for v in timed.views]
+    assert scene_for_plan(timed, plan(timed, overrides={"background": "fixed"})) is timed  # nothing to change
     off = plan(timed, overrides={"time": "off"})
     assert off["time"].enabled is False and off["time"].source == "user"
     flat = scene_for_plan(timed, off)
@@ -115,17 +117,35 @@ def test_static_vs_dynamic():
 
 
 def test_rgba_vs_rgb_background():
-    rgba, rgb = plan(make_scene(rgba=True)), plan(make_scene(rgba=False))
-    shell = plan(make_scene(rgba=False), overrides={"rig": "inward"})
-    # RGBA: alpha learned. RGB: a fixed background on every rig ("opaque" measured mixed: a setting), the reason
-    # saying what was measured
-    assert rgba["background"].value == "transparent" and rgb["background"].value == "fixed"
-    assert shell["background"].value == "fixed" and "opaque" in shell["background"].reason
+    from gsgs_engine.effect_plan import scene_for_plan
+
+    rgba, orbit = plan(make_scene(rgba=True)), plan(make_scene(rgba=False))
+    rgb = plan(make_scene(rgba=False), overrides={"rig": "inward"})
+    plain = plan(make_scene(rgba=False), PriorConfig(prior="none"), overrides={"rig": "inward"})
+    # RGBA: alpha learned. An inward shell's RGB photos under the weights-free recipe: their mean colour is the
+    # background (what a novel view shows where no splat covers it); other rigs and plain 3DGS keep the fixed one
+    assert rgba["background"].value == "transparent" and rgb["background"].value == "mean"
+    assert orbit["background"].value == "fixed" and "horns" in orbit["background"].reason
+    assert plain["background"].value == "fixed" and plain["background"].enabled is False
+    video = plan(make_scene(times=[0.0, 0.5, 1.0]), overrides={"rig": "inward"})  # the 4D model: the same
+    assert video["time"].enabled and video["background"].value == "mean"
+    rgb_scene = make_scene(rgba=False)
+    photos = np.stack([v.image() for v in rgb_scene.train])
+    want = photos.reshape(len(photos), -1, 3).mean(axis=1).mean(axis=0)
+    colour = rgb["background"].measured["colour"]
+    assert np.allclose(colour, want, atol=1e-4) and not np.allclose(colour, 1.0)
+    trained_on = scene_for_plan(rgb_scene, rgb)
+    assert np.allclose(trained_on.background, colour) and np.allclose(rgb_scene.background, 1.0)  # input untouched
+    assert np.allclose(scene_for_plan(rgb_scene, plain).background, 1.0)
     assert apply_effect_plan(rgba, TrainConfig(), AUTO)[0].random_background is True
     assert apply_effect_plan(rgb, TrainConfig(random_background=True), AUTO)[0].random_background is False
     opaque = plan(make_scene(), overrides={"background": "opaque"})
     assert opaque["background"].value == "opaque" and opaque["background"].enabled
     assert apply_effect_plan(opaque, TrainConfig(), AUTO)[0].random_background is True
+    assert np.allclose(scene_for_plan(rgb_scene, opaque).background, 1.0)
+    asked = plan(make_scene(), PriorConfig(prior="none"), overrides={"background": "mean"})
+    assert asked["background"].value == "mean" and asked["background"].source == "user"
+    assert np.allclose(asked["background"].measured["colour"], colour)
     assert plan(make_scene(rgba=True), overrides={"background": "fixed"})["background"].value == "fixed"
     assert plan(make_scene(), overrides={"background": "fixed"})["background"].value == "fixed"
     # --random-background / the job setting: whichever random background the views allow
@@ -134,8 +154,9 @@ def test_rgba_vs_rgb_background():
         "opaque"
     with pytest.raises(GsgsError, match="no alpha.*opaque"):
         plan(make_scene(), overrides={"background": "transparent"})
-    with pytest.raises(GsgsError, match="has an alpha channel"):
-        plan(make_scene(rgba=True), overrides={"background": "opaque"})
+    for value in ("opaque", "mean"):
+        with pytest.raises(GsgsError, match="has an alpha channel"):
+            plan(make_scene(rgba=True), overrides={"background": value})
 
 
 def test_with_and_without_a_depth_source(tmp_path):

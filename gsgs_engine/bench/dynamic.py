@@ -60,10 +60,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--techniques", default=None,
                         help="sparse-view techniques for every model of the comparison, as gsgs train takes them "
                              "(e.g. exposure,dropout; default none)")
-    parser.add_argument("--background", default="fixed", choices=("fixed", "opaque"),
-                        help="every model's training background: fixed (the scene's) or opaque (a random colour "
-                             "behind each step's render, the photo unchanged: gsgs train --effects background=opaque; "
-                             "measured worse on the 4D model); evaluation always uses the scene's")
+    parser.add_argument("--background", default="fixed", choices=("fixed", "mean", "opaque"),
+                        help="every model's background: fixed (the scene's), mean (the training photos' mean colour, "
+                             "in training and evaluation: what gsgs train --prior auto uses on RGB views) or opaque "
+                             "(a random colour behind each training step's render, the photo unchanged; evaluated "
+                             "on the scene's)")
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
@@ -185,6 +186,15 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     from gsgs_engine.train.techniques.catalogue import parse_techniques
 
     chosen = parse_techniques(techniques, "--techniques")  # checked before anything trains
+    if background == "mean":
+        from dataclasses import replace
+
+        import numpy as np
+
+        from gsgs_engine.effect_plan import photos_mean_colour
+
+        scene = replace(scene, background=np.asarray(photos_mean_colour(scene.train), dtype=np.float32))
+        log(f"[bench dynamic] background: the training photos' mean colour {scene.background.tolist()}")
     layout = bench_rig(scene, rig, log)
     near = float(layout["near"]) if layout.get("near") else DEFAULT_NEAR
 
@@ -198,7 +208,8 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     log(f"[bench dynamic] rasteriser ready ({time.perf_counter() - t0:.1f}s, not counted in train_seconds)")
     region_fn, region_what = region_masks(scene.test)
     log(f"[bench dynamic] dynamic region: {region_what}")
-    results: dict = {"region": region_what, "rig": layout, "novel_view_near": near, "background": background}
+    results: dict = {"region": region_what, "rig": layout, "novel_view_near": near, "background": background,
+                     "background_colour": [round(float(c), 4) for c in scene.background]}
     if "4d" in models:
         trainer = SpacetimeTrainer(scene, config(iters), log=log)
         results["4d"] = _train_eval(trainer, scene.test, out_dir / "renders" / "4d", log, "4d", region_fn, lpips,
