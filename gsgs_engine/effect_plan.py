@@ -118,13 +118,14 @@ OPAQUE_MEASURED = ("a random one behind the photos, --effects background=opaque,
 # "mean": the training photos' mean colour as the scene's background, in training and in every render after it
 # (evaluation, `gsgs eval` reads it from metrics.json). Where no splat covers a pixel of a novel view, the render
 # shows the background; of all fixed colours the photos' mean is the best guess for what is there, where white
-# is the worst for a grey room. `auto` on an inward shell's RGB photos. Measured (1000 steps, seed 0): panoptic_basketball frame 0,
-# 9 cameras, --init mvs --techniques exposure, half resolution: 15.01 -> 22.72 dB (SSIM 0.580 -> 0.815, LPIPS
-# 0.539 -> 0.373); its 4D model of 10 frames: 20.16 -> 24.15 dB; LLFF flower (3 views, `--prior auto`): 20.90 ->
+# is the worst for a grey room. `auto` on an inward shell's RGB photos. Measured (1000 steps, seed 0):
+# panoptic_basketball frame 0, 9 cameras, --init mvs --techniques exposure, half resolution: 15.01 -> 22.72 dB
+# (SSIM 0.580 -> 0.815, LPIPS 0.539 -> 0.373); the same frame under `--prior auto`: 15.34 -> 21.62 dB; its 4D
+# model of 10 frames: 20.16 -> 24.15 dB (3 cameras: 17.45 -> 17.53); LLFF flower (3 views, `--prior auto`): 20.90 ->
 # 20.95 dB (SSIM 0.671 -> 0.679, LPIPS 0.301 -> 0.292) but horns 20.36 -> 19.18 (SSIM and LPIPS better) --
 # so `auto` uses it on inward shells (still or video), where test views look at what no training view covered;
 # other rigs keep white (RGB orbits not measured) (docs/inward_rigs.md).
-MEAN_ELSEWHERE = ("the photos' mean colour behind the splats, --effects background=mean, gained 3.3-7.7 dB on an "
+MEAN_ELSEWHERE = ("the photos' mean colour behind the splats, --effects background=mean, gained up to 7.9 dB on an "
                   "inward shell but measured mixed on forward-facing LLFF: flower +0.05 dB, horns -1.18")
 MEAN_WHY = ("RGB views: the training photos' mean colour behind the splats (training and every render after it): "
             "what a novel view shows where no splat covers it")

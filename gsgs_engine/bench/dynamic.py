@@ -62,9 +62,9 @@ def add_arguments(parser) -> None:
                              "(e.g. exposure,dropout; default none)")
     parser.add_argument("--background", default="fixed", choices=("fixed", "mean", "opaque"),
                         help="every model's background: fixed (the scene's), mean (the training photos' mean colour, "
-                             "in training and evaluation: what gsgs train --prior auto uses on RGB views) or opaque "
-                             "(a random colour behind each training step's render, the photo unchanged; evaluated "
-                             "on the scene's)")
+                             "in training and evaluation: what gsgs train --prior auto uses on an inward shell's RGB "
+                             "views) or opaque (a random colour behind each training step's render, the photo "
+                             "unchanged; evaluated on the scene's)")
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
