@@ -375,8 +375,9 @@ torch.save(out, sys.argv[1])
 
 
 def test_every_tile_variant_renders_the_same(cpu, tmp_path):
-    """The kernel's three builds of its tile loops (AVX2 + FMA, AVX2, portable x86-64), each forced in its own
-    process: the two without FMA are bit-identical (same operations lane for lane), the FMA one within rounding."""
+    """The kernel's builds of its tile loops (AVX-512VL, AVX2 + FMA, AVX2, portable x86-64), each forced in its own
+    process: the two without FMA are bit-identical (same operations lane for lane), the FMA ones within rounding.
+    On a processor without AVX-512 its variant falls back to the FMA one (never chosen where it cannot run)."""
     import os
     import subprocess
     import sys
@@ -384,7 +385,7 @@ def test_every_tile_variant_renders_the_same(cpu, tmp_path):
 
     tests_dir = str(Path(__file__).resolve().parent)
     results = {}
-    for variant in ("fma", "avx2", "portable"):
+    for variant in ("avx512", "fma", "avx2", "portable"):
         env = {**os.environ, "GSGS_TILE_VARIANT": variant}
         env.pop("GSGS_NO_FMA", None)
         path = tmp_path / f"{variant}.pt"
@@ -398,7 +399,8 @@ def test_every_tile_variant_renders_the_same(cpu, tmp_path):
     for seed, ref in results["portable"].items():
         for name, value in ref.items():
             assert torch.equal(results["avx2"][seed][name], value), f"seed {seed}: avx2 and portable differ in {name}"
-            fma = results["fma"][seed][name]
-            assert torch.isfinite(fma).all()
-            err = float((fma.double() - value.double()).norm() / value.double().norm().clamp_min(1e-12))
-            assert err < 1e-4, f"seed {seed}: the FMA variant's {name} differs by {err:.3g} (relative)"
+            for variant in ("fma", "avx512"):
+                fma = results[variant][seed][name]
+                assert torch.isfinite(fma).all()
+                err = float((fma.double() - value.double()).norm() / value.double().norm().clamp_min(1e-12))
+                assert err < 1e-4, f"seed {seed}: the {variant} variant's {name} differs by {err:.3g} (relative)"
