@@ -82,6 +82,19 @@ def test_cell_seconds_never_undercount_the_loop_and_command_line_is_the_users():
     assert _own_arguments(["--seeds", "1"]) == ["--seeds", "1"]
 
 
+def test_seeds_take_a_count_a_range_or_a_list():
+    import argparse
+
+    from gsgs_engine.bench.sparse import parse_seeds
+
+    assert parse_seeds("3") == [0, 1, 2]
+    assert parse_seeds("1-2") == [1, 2] and parse_seeds("2-2") == [2]
+    assert parse_seeds("2,1") == [1, 2] and parse_seeds("2,") == [2]
+    for bad in ("0", "-1", "a", "3-1", "1,-2", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="--seeds"):
+            parse_seeds(bad)
+
+
 def test_named_ablation_set_reuses_the_grid_cells_and_every_setting_passes_the_job_schema():
     from gsgs_engine.bench.sparse import ABLATION, VARIANTS
     from gsgs_engine.settings_schema import check_settings

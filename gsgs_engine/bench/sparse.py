@@ -498,7 +498,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variants", default=None,
                         help="a named set (" + ", ".join(f"{k}: {len(v)} variants" for k, v in VARIANT_SETS.items())
                         + '; default: default), or JSON {name: settings}, or a file holding it')
-    parser.add_argument("--seeds", type=int, default=3, help="number of seeds (0 .. N-1; default 3)")
+    parser.add_argument("--seeds", type=parse_seeds, default=[0, 1, 2],
+                        help="N (seeds 0 .. N-1; default 3), a range A-B (seeds A .. B) or a list 1,2: a grid "
+                             "can be split over machines or sessions and resumed")
     parser.add_argument("--iters", type=int, default=None, help="override every variant's iterations")
     parser.add_argument("--resolution-scale", type=float, default=None,
                         help="override the protocol's resolution (smoke tests only: the numbers stop being comparable)")
@@ -514,6 +516,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="train nothing: write the table from the cells finished before and list the others")
 
 
+def parse_seeds(text: str) -> list[int]:
+    """--seeds: "N" -> 0 .. N-1, "A-B" -> A .. B, "a,b,c" -> those; seeds are >= 0, at least one."""
+    import argparse as _argparse
+
+    text = str(text).strip()
+    try:
+        if "," in text:
+            seeds = [int(part) for part in text.split(",") if part.strip()]
+        elif "-" in text.lstrip("-"):
+            lo, hi = (int(part) for part in text.split("-", 1))
+            seeds = list(range(lo, hi + 1))
+        else:
+            count = int(text)
+            if count < 1:
+                raise _argparse.ArgumentTypeError(f"--seeds {text}: at least one seed (N >= 1)")
+            seeds = list(range(count))
+    except ValueError:
+        raise _argparse.ArgumentTypeError(f"--seeds {text!r}: write N (seeds 0 .. N-1), A-B or a list 1,2") from None
+    if not seeds or min(seeds) < 0:
+        raise _argparse.ArgumentTypeError(f"--seeds {text!r}: seeds are integers >= 0, at least one")
+    return sorted(set(seeds))
+
+
 def _own_arguments(argv: list[str]) -> list[str]:
     """The arguments after `bench sparse` (`gsgs bench sparse ...` passes the whole command line)."""
     argv = list(argv)
@@ -527,14 +552,12 @@ def run(args: argparse.Namespace) -> int:
     """`gsgs bench sparse ...` (gsgs_engine.cli raises GsgsError as one `gsgs: error:` line)."""
     from gsgs_engine import GsgsError
 
-    if args.seeds < 1:
-        raise GsgsError("--seeds must be at least 1")
     cluster = None
     if getattr(args, "ray", None):
         from gsgs_engine.cluster.submit import cluster_cells
 
         cluster = cluster_cells(args)
-    run_bench(args.protocol or list(PROTOCOLS), args.scene, load_variants(args.variants), list(range(args.seeds)),
+    run_bench(args.protocol or list(PROTOCOLS), args.scene, load_variants(args.variants), list(args.seeds),
               args.work, args.data_root, args.doc, args.iters, args.resolution_scale, args.timeout,
               command="gsgs bench sparse " + " ".join(_own_arguments(getattr(args, "_argv", None) or sys.argv[1:])),
               train=not getattr(args, "report_only", False), ray=cluster)
