@@ -147,39 +147,55 @@ void backward_tile(GSGS_TILE_ARGS_B) {
         if (!any_lane(listed & (power >= s.power_floor))) continue;  // no listed lane can reach alpha 1/255
         const vf G = exp_nonpositive(power);
         const vf oG = s.opacity * G;
-        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
-        const vi valid = listed & (power <= 0.0f) & (alpha >= kMinAlpha);
+        const vf alpha_lane = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vi valid = listed & (power <= 0.0f) & (alpha_lane >= kMinAlpha);
         if (!any_lane(valid)) continue;
         touched = true;
+        // alpha 0 on the lanes j did not blend into: there T_before == T and w == 0 exactly, so T and the
+        // weights need no select (the colour sums S keep theirs: 0 * a non-finite colour would not be 0).
+        const vf alpha = select(valid, alpha_lane, splat(0.0f));
         const vf one_minus = 1.0f - alpha;  // >= 0.01
         const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
         const vf T_before = T[v] * inv_one_minus;
-        const vf w = select(valid, alpha * T_before, splat(0.0f));
-        vf dot = gr[v] * (s.r - Sr[v]) + gg[v] * (s.g - Sg[v]) + gb[v] * (s.b - Sb[v]);
+        const vf w = alpha * T_before;
+        const vf dr = s.r - Sr[v], dg = s.g - Sg[v], db = s.b - Sb[v];
+        vf dot = gr[v] * dr + gg[v] * dg + gb[v] * db;
         if (with_depth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
         const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
-        const vf dL_dpower = dL_doG * oG;
-        acc[0] += dL_dpower * -(s.A * dx + s.B * dy);
-        acc[1] += dL_dpower * -(s.B * dx + s.C * dy);
-        acc[2] += dL_dpower * (-0.5f * dx * dx);
-        acc[3] += dL_dpower * (-dx * dy);
-        acc[4] += dL_dpower * (-0.5f * dy * dy);
+        // dL/dpower times the offsets' moments; the mean and conic gradients are formed from them per entry:
+        // d power / d mean = -(A dx + B dy, B dx + C dy), d power / d conic = -(dx^2 / 2, dx dy, dy^2 / 2).
+        const vf q = dL_doG * oG;
+        const vf qx = q * dx, qy = q * dy;
+        acc[0] += qx;
+        acc[1] += qy;
+        acc[2] += qx * dx;
+        acc[3] += qx * dy;
+        acc[4] += qy * dy;
         acc[5] += gr[v] * w;
         acc[6] += gg[v] * w;
         acc[7] += gb[v] * w;
         acc[8] += dL_doG * G;
         if (with_depth) acc[9] += gz[v] * w;
-        Sr[v] = select(valid, alpha * s.r + one_minus * Sr[v], Sr[v]);
-        Sg[v] = select(valid, alpha * s.g + one_minus * Sg[v], Sg[v]);
-        Sb[v] = select(valid, alpha * s.b + one_minus * Sb[v], Sb[v]);
+        Sr[v] = select(valid, Sr[v] + alpha * dr, Sr[v]);  // S_{i-1} = a_i c_i + (1 - a_i) S_i
+        Sg[v] = select(valid, Sg[v] + alpha * dg, Sg[v]);
+        Sb[v] = select(valid, Sb[v] + alpha * db, Sb[v]);
         if (with_depth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
-        T[v] = select(valid, T_before, T[v]);
+        T[v] = T_before;
       }
     }
     if (touched) {
-      hsum8(acc, record);
+      float m[8];
+      hsum8(acc, m);  // sums of q dx, q dy, q dx^2, q dx dy, q dy^2, then the colour gradients
+      record[0] = -(s.A * m[0] + s.B * m[1]);
+      record[1] = -(s.B * m[0] + s.C * m[1]);
+      record[2] = -0.5f * m[2];
+      record[3] = -m[3];
+      record[4] = -0.5f * m[4];
+      record[5] = m[5];
+      record[6] = m[6];
+      record[7] = m[7];
       record[8] = hsum(acc[8]);
       record[9] = hsum(acc[9]);
     } else {
