@@ -90,6 +90,7 @@ def sparse_points_file(scene) -> str | None:
 
 def _on_train_finished(scene, run) -> None:
     if run.state == "ok":
+        print(f"gsgs: time estimate {train_estimate.learn_from_job(run.job_dir)}", flush=True)
         obj = import_job_result(scene, run.job_dir)
         report = list(obj.get("gsgs_report", []))
         warnings = [line for line in report if line.startswith("WARNING: ")]
@@ -129,13 +130,16 @@ class GSGS_OT_train(bpy.types.Operator):
         scene = context.scene
         try:
             job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
+            estimate = train_estimate.estimate_text(scene)  # stated before the job runs (headless: before it ends)
+            inputs = train_estimate.job_estimate_inputs(scene)
+            if inputs is not None:  # what is estimated now; the finished job's time corrects later estimates
+                train_estimate.write_job_estimate(job.root, **inputs)
             scene.gsgs.train_job = stored_path(job.root)
             run = launch(context, job, on_finish=scene_callback(scene.name, _on_train_finished), timeout=self.timeout)
         except GsgsError as exc:
             return report_error(self, exc)
         if run.finished and run.state != "ok":
             return report_error(self, GsgsError(f"training {run.state}: {run.message}"))
-        estimate = train_estimate.estimate_text(scene)
         self.report({"INFO"}, run.message if run.finished else
                     f"training started: {job.root}" + (f" (estimated {estimate})" if estimate else ""))
         return {"FINISHED"}

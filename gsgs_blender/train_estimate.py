@@ -22,9 +22,21 @@ reference cells, nothing else running: the orbit reference gives 200 s (the pane
 took 215 s, the whole workflow 246 s (2026-11-25, before the faster kernel step and the orbit recipe's
 binocular view every second step: stated 250 s, trained 262 s, 289 s in all). It is a rough figure
 (scene content, Gaussian counts and the machine's day move it by tens of percent) and the panel says so.
+
+This machine's own jobs correct it: a training job started from the add-on keeps the uncorrected estimate in its
+folder (estimate.json); when it finishes, its measured training seconds are added to a small log beside the
+installed engines (train_timings.jsonl; GSGS_TIMINGS names another file), and later estimates are scaled by the
+median of measured / estimated over the last few jobs of the same recipe (of any recipe while none of it has run).
+Jobs too short to say anything (under MIN_LEARN_ITERS steps or MIN_LEARN_SECONDS) are not learned from.
 """
 
 from __future__ import annotations
+
+import json
+import os
+import statistics
+import time
+from pathlib import Path
 
 from gsgs_engine import GsgsError
 
@@ -37,6 +49,13 @@ REFERENCES = {
 }
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
+TIMINGS_FILE = "train_timings.jsonl"
+ESTIMATE_FILE = "estimate.json"  # in a job folder: what was estimated when it started
+KEEP_TIMINGS = 50  # lines the log keeps
+USE_LAST = 5  # jobs a correction is the median of
+MIN_LEARN_ITERS = 100
+MIN_LEARN_SECONDS = 10.0
+FACTOR_RANGE = (0.2, 5.0)  # a correction outside this says more about a broken log than about the machine
 
 
 def train_size(width: int, height: int, resolution_scale: float, max_side: int = 0) -> tuple[int, int]:
@@ -68,12 +87,88 @@ def recipe(generator: str, cameras=None) -> str:
 
 def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str,
                      max_side: int = 0, cameras=None) -> float:
-    """Rough CPU seconds of a training run of `iterations` steps on views of width x height."""
+    """Rough CPU seconds of a training run of `iterations` steps on views of width x height, from the reference
+    runs alone (`machine_factor` corrects it for this machine)."""
     seconds, ref_pixels = REFERENCES[recipe(generator, cameras)]
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
     per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT
     return iterations * per_step
+
+
+def timings_path() -> Path:
+    """The log of finished jobs' estimated and measured seconds: GSGS_TIMINGS, else beside the installed engines."""
+    if os.environ.get("GSGS_TIMINGS"):
+        return Path(os.environ["GSGS_TIMINGS"])
+    from .engine_install import engines_dir
+
+    return engines_dir().parent / TIMINGS_FILE
+
+
+def read_timings(path: Path | None = None) -> list[dict]:
+    """The log's records, oldest first; lines that do not parse are skipped (a log is never a reason to fail)."""
+    path = timings_path() if path is None else path
+    try:
+        lines = path.read_text().splitlines()
+    except OSError:
+        return []
+    records = []
+    for line in lines:
+        try:
+            rec = json.loads(line)
+            if float(rec["estimated_s"]) > 0 and float(rec["train_s"]) > 0 and rec.get("recipe") in REFERENCES:
+                records.append(rec)
+        except (ValueError, KeyError, TypeError):
+            continue
+    return records
+
+
+def machine_factor(kind: str, path: Path | None = None) -> tuple[float, int]:
+    """(measured / estimated, jobs it comes from) for recipe `kind` on this machine; (1.0, 0) before any job."""
+    records = read_timings(path)
+    same = [r for r in records if r["recipe"] == kind]
+    use = (same or records)[-USE_LAST:]
+    if not use:
+        return 1.0, 0
+    ratio = statistics.median(float(r["train_s"]) / float(r["estimated_s"]) for r in use)
+    return min(max(ratio, FACTOR_RANGE[0]), FACTOR_RANGE[1]), len(use)
+
+
+def write_job_estimate(job_dir, iterations: int, width: int, height: int, resolution_scale: float, generator: str,
+                       max_side: int = 0, cameras=None) -> dict:
+    """Keep the uncorrected estimate of a job about to start in its folder (estimate.json); returns it."""
+    record = {"recipe": recipe(generator, cameras), "iterations": int(iterations),
+              "size": list(train_size(width, height, resolution_scale, max_side)),
+              "estimated_s": estimate_seconds(iterations, width, height, resolution_scale, generator, max_side,
+                                              cameras)}
+    (Path(job_dir) / ESTIMATE_FILE).write_text(json.dumps(record))
+    return record
+
+
+def learn_from_job(job_dir, path: Path | None = None) -> str:
+    """Add a finished job's estimated and measured training seconds to the log. Returns what it did, in words."""
+    job_dir = Path(job_dir)
+    try:
+        estimate = json.loads((job_dir / ESTIMATE_FILE).read_text())
+        metrics = json.loads((job_dir / "result" / "metrics.json").read_text())
+    except (OSError, ValueError) as exc:
+        return f"not learned from: {exc}"
+    train_s, iters = metrics.get("train_seconds"), metrics.get("iterations")
+    if not isinstance(train_s, (int, float)) or not isinstance(iters, int) or iters != estimate.get("iterations"):
+        return "not learned from: the job's metrics do not match its estimate (resumed or changed?)"
+    if iters < MIN_LEARN_ITERS or train_s < MIN_LEARN_SECONDS:
+        return f"not learned from: {iters} steps in {train_s:.1f} s is too short to time this machine"
+    if metrics.get("backend") not in (None, "cpu", "reference"):
+        return f"not learned from: trained on {metrics.get('backend')}, the estimate is for the CPU"
+    record = {"time": time.strftime("%Y-%m-%d %H:%M:%S"), "recipe": estimate["recipe"], "iterations": iters,
+              "size": estimate.get("size"), "estimated_s": float(estimate["estimated_s"]), "train_s": float(train_s)}
+    path = timings_path() if path is None else path
+    lines = [json.dumps(r) for r in read_timings(path)][-(KEEP_TIMINGS - 1):] + [json.dumps(record)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return f"learned: {record['recipe']} estimated {record['estimated_s']:.0f} s, took {train_s:.0f} s"
 
 
 def format_duration(seconds: float) -> str:
@@ -87,23 +182,34 @@ def format_duration(seconds: float) -> str:
 
 
 def estimate_text(scene) -> str:
-    """'~N min on a 2-core CPU ...' for the scene's training cameras and Train fields ('' without cameras)."""
+    """'~N min on this machine ...' for the scene's training cameras and Train fields ('' without cameras)."""
+    inputs = job_estimate_inputs(scene)
+    if inputs is None:
+        return ""
+    seconds = estimate_seconds(**inputs)
+    w, h = train_size(inputs["width"], inputs["height"], inputs["resolution_scale"], inputs["max_side"])
+    kind = recipe(inputs["generator"], inputs["cameras"])
+    factor, jobs = machine_factor(kind)
+    name = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[kind]
+    where = (f"on this machine, from {jobs} finished job{'s' if jobs != 1 else ''}" if jobs else
+             "on a 2-core CPU")
+    return (f"~{format_duration(seconds * factor)} {where} ({inputs['iterations']} steps of {name} on {w}x{h} px; "
+            "a GPU is far faster)")
+
+
+def job_estimate_inputs(scene) -> dict | None:
+    """estimate_seconds' arguments for the scene's training cameras and Train fields (None without cameras)."""
     from . import camera_convert, pseudo_paths
 
     objs = pseudo_paths.training_camera_objects(scene)
     if not objs:
-        return ""
+        return None
     sizes = [camera_convert.frame_of(o, scene)[:2] for o in objs]
-    width = max(w for w, _ in sizes)
-    height = max(h for _, h in sizes)
-    s = scene.gsgs
     try:
         cameras = [camera_convert.camera_from_object(o, scene) for o in objs]
-    except GsgsError:  # a camera the engine cannot take: the job will say so; estimate as forward-facing
+    except GsgsError:
         cameras = None
-    seconds = estimate_seconds(s.iterations, width, height, s.resolution_scale, s.generator, s.max_side, cameras)
-    w, h = train_size(width, height, s.resolution_scale, s.max_side)
-    kind = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[
-        recipe(s.generator, cameras)]
-    return (f"~{format_duration(seconds)} on a 2-core CPU ({s.iterations} steps of {kind} on {w}x{h} px; a GPU is "
-            "far faster)")
+    s = scene.gsgs
+    return {"iterations": s.iterations, "width": max(w for w, _ in sizes), "height": max(h for _, h in sizes),
+            "resolution_scale": s.resolution_scale, "generator": s.generator, "max_side": s.max_side,
+            "cameras": cameras}

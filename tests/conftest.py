@@ -23,6 +23,19 @@ def shared_scene(name: str) -> Path:
 
 
 @pytest.fixture(autouse=True, scope="session")
+def _private_timings_log(tmp_path_factory):
+    # The add-on learns its time estimate from finished jobs (gsgs_blender.train_estimate): tests write their own log.
+    path = tmp_path_factory.mktemp("timings") / "train_timings.jsonl"
+    old = os.environ.get("GSGS_TIMINGS")
+    os.environ["GSGS_TIMINGS"] = str(path)
+    yield path
+    if old is None:
+        os.environ.pop("GSGS_TIMINGS", None)
+    else:
+        os.environ["GSGS_TIMINGS"] = old
+
+
+@pytest.fixture(autouse=True, scope="session")
 def _few_threads():
     # The CI machine has 2 cores; keep torch from oversubscribing when tests run.
     try:

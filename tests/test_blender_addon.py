@@ -199,6 +199,12 @@ def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
     obj = scene.gsgs.result_object
     assert obj is not None and obj["gsgs_count"] > 0
     assert len(obj.data.vertices) == obj["gsgs_count"]
+    from gsgs_blender import train_estimate
+
+    estimate = json.loads((Path(run.job_dir) / train_estimate.ESTIMATE_FILE).read_text())
+    assert estimate["recipe"] == "plain" and estimate["iterations"] == 30 and estimate["estimated_s"] > 0
+    assert "too short" in train_estimate.learn_from_job(run.job_dir)  # 30 steps do not time the machine
+    assert train_estimate.read_timings() == []
 
 
 @pytest.mark.slow

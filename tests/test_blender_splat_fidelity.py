@@ -175,6 +175,53 @@ def test_training_estimate_reproduces_its_reference_runs():
     assert est(1000, 1600, 850, 1.0, "none", 800) == pytest.approx(est(1000, 800, 425, 1.0, "none"))
 
 
+def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path):
+    """A job keeps its uncorrected estimate; its measured seconds, once finished, scale later estimates of its recipe
+    (the median of the last few), and jobs that cannot time the machine are not learned from."""
+    import json
+
+    from gsgs_blender import train_estimate as te
+
+    log = tmp_path / "timings.jsonl"
+    assert te.machine_factor("orbit", log) == (1.0, 0)
+
+    def job(name: str, iters: int, train_s: float, generator: str = "none", backend: str = "cpu",
+            metrics_iters: int | None = None) -> Path:
+        folder = tmp_path / name
+        (folder / "result").mkdir(parents=True)
+        rec = te.write_job_estimate(folder, iters, 504, 378, 1.0, generator)
+        assert json.loads((folder / te.ESTIMATE_FILE).read_text()) == rec and rec["recipe"] in te.REFERENCES
+        # the fields gsgs_engine.reconstruct writes into metrics.json that the estimate reads
+        metrics = {"train_seconds": train_s, "iterations": iters if metrics_iters is None else metrics_iters,
+                   "backend": backend}
+        (folder / "result" / "metrics.json").write_text(json.dumps(metrics))
+        return folder
+
+    plain = te.estimate_seconds(1000, 504, 378, 1.0, "none")
+    assert te.learn_from_job(job("a", 1000, plain * 0.5), log).startswith("learned")
+    assert te.machine_factor("plain", log) == (pytest.approx(0.5), 1)
+    assert te.machine_factor("forward", log) == (pytest.approx(0.5), 1)  # no forward job yet: any recipe's
+    te.learn_from_job(job("b", 1000, plain * 0.6), log)
+    te.learn_from_job(job("c", 1000, plain * 0.9), log)
+    assert te.machine_factor("plain", log) == (pytest.approx(0.6), 3)  # the median
+    fwd = te.estimate_seconds(500, 504, 378, 1.0, "auto")
+    te.learn_from_job(job("d", 500, fwd * 2.0, generator="auto"), log)
+    assert te.machine_factor("forward", log) == (pytest.approx(2.0), 1)  # its own recipe once it has run
+    assert te.machine_factor("plain", log) == (pytest.approx(0.6), 3)
+    for name, args, why in [("e", (50, 40.0), "too short"), ("f", (1000, 5.0), "too short"),
+                            ("g", (1000, 100.0, "none", "cuda"), "CPU"),
+                            ("h", (1000, 100.0, "none", "cpu", 400), "do not match")]:
+        assert why in te.learn_from_job(job(name, *args), log)
+    assert "not learned from" in te.learn_from_job(tmp_path / "nothing-here", log)
+    assert len(te.read_timings(log)) == 4
+    with open(log, "a") as fh:  # a damaged line is skipped, never fatal
+        fh.write("{not json\n")
+    assert len(te.read_timings(log)) == 4 and te.machine_factor("plain", log)[1] == 3
+    for name in "ijk":
+        te.learn_from_job(job(name, 1000, plain * 100.0), log)
+    assert te.machine_factor("plain", log) == (te.FACTOR_RANGE[1], te.USE_LAST)  # median of the last 5 is 100x
+
+
 def _tiny_video(root: Path, cams: list[Camera], times: list[float]) -> None:
     """A NeRF-synthetic JSON with a time and a camera id per frame (io.dynamic): flat grey RGBA images."""
     import cv2
