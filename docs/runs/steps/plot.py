@@ -1,16 +1,40 @@
-"""The accuracy-vs-steps plot of docs/speed.md (run from the repository root): the cells' figures as measured there."""
+"""The accuracy-vs-steps plot of docs/speed.md (run from the repository root): the cells' figures as measured there.
+
+`--prior auto`, the recipe of this build (the orbit recipe's binocular view every second step); NeRF-synthetic:
+mean over seeds 0-2 with the seeds' spread as error bars (1000 steps: docs/speed.md's 3-seed bino2 grid, docs/runs/screens_2026-11-26/; 3000
+steps: the *_3000_seed*.metrics.json beside this file); LLFF flower: seed 0 only (its 3000-step cell ran the
+binocular view every step, as the forward-facing recipe still does).
+"""
+import statistics
+
 import matplotlib
+
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt
-# (steps, PSNR, LPIPS) of `--prior auto`, seed 0: docs/speed.md "Accuracy against steps"
-cells = {"blender_lego (8 views)": [(1000, 24.30, 0.121), (3000, 25.50, 0.095)],
-         "llff_flower (3 views)": [(1000, 20.87, 0.309), (3000, 21.16, 0.273)]}
+import matplotlib.pyplot as plt  # noqa: E402
+
+# name -> {steps: ([PSNR per seed], [LPIPS per seed])}
+CELLS = {
+    "blender_lego (8 views)": {1000: ([24.33, 24.62, 24.30], [0.120, 0.119, 0.121]),
+                               3000: ([25.30, 25.39, 25.52], [0.096, 0.095, 0.095])},
+    "blender_chair (8 views)": {1000: ([27.82, 27.56, 28.09], [0.073, 0.074, 0.072]),
+                                3000: ([28.54, 28.59, 28.60], [0.057, 0.057, 0.055])},
+    "llff_flower (3 views, seed 0)": {1000: ([20.87], [0.304]), 3000: ([21.16], [0.273])},
+}
+
+
+def mean_sd(values):
+    return statistics.mean(values), (statistics.stdev(values) if len(values) > 1 else 0.0)
+
+
 fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
-for name, pts in cells.items():
-    a.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=name)
-    b.plot([p[0] for p in pts], [p[2] for p in pts], "o-", label=name)
+for name, by_steps in CELLS.items():
+    steps = sorted(by_steps)
+    for axis, k in ((a, 0), (b, 1)):
+        stats = [mean_sd(by_steps[s][k]) for s in steps]
+        axis.errorbar(steps, [m for m, _ in stats], yerr=[sd for _, sd in stats], fmt="o-", capsize=3, label=name)
 a.set_xlabel("training steps"); a.set_ylabel("test PSNR (dB)"); a.set_xticks([1000, 3000]); a.grid(alpha=0.3)
-b.set_xlabel("training steps"); b.set_ylabel("test LPIPS (VGG), lower is better"); b.set_xticks([1000, 3000]); b.grid(alpha=0.3)
+b.set_xlabel("training steps"); b.set_ylabel("test LPIPS (VGG), lower is better"); b.set_xticks([1000, 3000])
+b.grid(alpha=0.3)
 a.legend(fontsize=8)
-fig.suptitle("--prior auto, seed 0, 2-core CPU: what 3x the steps buys")
+fig.suptitle("--prior auto, 2-core CPU: what 3x the steps buys (NeRF-synthetic: seeds 0-2)")
 fig.tight_layout(); fig.savefig("docs/accuracy_steps.png", dpi=100)
