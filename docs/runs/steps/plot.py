@@ -1,9 +1,9 @@
 """The accuracy-vs-steps plot of docs/speed.md (run from the repository root): the cells' figures as measured there.
 
-`--prior auto`, the recipe of this build (the orbit recipe's binocular view every second step); NeRF-synthetic:
+`--prior auto`, the recipe of this build (the orbit recipe's binocular view every second step, density-guided dropout on LLFF); NeRF-synthetic:
 mean over seeds 0-2 with the seeds' spread as error bars (1000 steps: docs/speed.md's 3-seed bino2 grid, docs/runs/screens_2026-11-26/; 3000
-steps: the *_3000_seed*.metrics.json beside this file); LLFF flower: seed 0 only (its 3000-step cell ran the
-binocular view every step, as the forward-facing recipe still does).
+steps: the *_3000_seed*.metrics.json beside this file); LLFF: seed 0 only (horns: docs/runs/screens_2026-11-26/
+llff_horns_ddrop_seed0 and llff_horns_auto_3000_seed0 here; flower's 3000-step cell ran the earlier uniform dropout).
 """
 import statistics
 
@@ -19,6 +19,7 @@ CELLS = {
     "blender_chair (8 views)": {1000: ([27.82, 27.56, 28.09], [0.073, 0.074, 0.072]),
                                 3000: ([28.54, 28.59, 28.60], [0.057, 0.057, 0.055])},
     "llff_flower (3 views, seed 0)": {1000: ([20.87], [0.304]), 3000: ([21.16], [0.273])},
+    "llff_horns (3 views, seed 0)": {1000: ([20.36], [0.321]), 3000: ([20.52], [0.267])},
 }
 
 
