@@ -143,7 +143,10 @@ def write_job_estimate(job_dir, iterations: int, width: int, height: int, resolu
               "size": list(train_size(width, height, resolution_scale, max_side)),
               "estimated_s": estimate_seconds(iterations, width, height, resolution_scale, generator, max_side,
                                               cameras)}
-    (Path(job_dir) / ESTIMATE_FILE).write_text(json.dumps(record))
+    try:
+        (Path(job_dir) / ESTIMATE_FILE).write_text(json.dumps(record))
+    except OSError:  # the job runs all the same; it is only not learned from
+        pass
     return record
 
 
@@ -164,12 +167,15 @@ def learn_from_job(job_dir, path: Path | None = None) -> str:
         return f"not learned from: trained on {metrics.get('backend')}, the estimate is for the CPU"
     record = {"time": time.strftime("%Y-%m-%d %H:%M:%S"), "recipe": estimate["recipe"], "iterations": iters,
               "size": estimate.get("size"), "estimated_s": float(estimate["estimated_s"]), "train_s": float(train_s)}
-    path = timings_path() if path is None else path
-    lines = [json.dumps(r) for r in read_timings(path)][-(KEEP_TIMINGS - 1):] + [json.dumps(record)]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    try:  # the log is a convenience: a folder that cannot be written never stops a result from being imported
+        path = timings_path() if path is None else path
+        lines = [json.dumps(r) for r in read_timings(path)][-(KEEP_TIMINGS - 1):] + [json.dumps(record)]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text("\n".join(lines) + "\n")
+        os.replace(tmp, path)
+    except (OSError, GsgsError) as exc:
+        return f"not learned from: the timings log cannot be written ({exc})"
     return f"learned: {record['recipe']} estimated {record['estimated_s']:.0f} s, took {train_s:.0f} s"
 
 

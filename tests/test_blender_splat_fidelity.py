@@ -220,6 +220,9 @@ def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path):
     for name in "ijk":
         te.learn_from_job(job(name, 1000, plain * 100.0), log)
     assert te.machine_factor("plain", log) == (te.FACTOR_RANGE[1], te.USE_LAST)  # median of the last 5 is 100x
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    assert "cannot be written" in te.learn_from_job(job("l", 1000, plain), blocked / "timings.jsonl")
 
 
 def _tiny_video(root: Path, cams: list[Camera], times: list[float]) -> None:
