@@ -163,8 +163,9 @@ def learn_from_job(job_dir, path: Path | None = None) -> str:
         return "not learned from: the job's metrics do not match its estimate (resumed or changed?)"
     if iters < MIN_LEARN_ITERS or train_s < MIN_LEARN_SECONDS:
         return f"not learned from: {iters} steps in {train_s:.1f} s is too short to time this machine"
-    if metrics.get("backend") not in (None, "cpu", "reference"):
-        return f"not learned from: trained on {metrics.get('backend')}, the estimate is for the CPU"
+    backend = (metrics.get("plan") or {}).get("backend")  # the renderer the job used (gsgs_engine.reconstruct)
+    if backend not in (None, "cpu", "reference"):
+        return f"not learned from: trained on {backend}, the estimate is for the CPU"
     record = {"time": time.strftime("%Y-%m-%d %H:%M:%S"), "recipe": estimate["recipe"], "iterations": iters,
               "size": estimate.get("size"), "estimated_s": float(estimate["estimated_s"]), "train_s": float(train_s)}
     try:  # the log is a convenience: a folder that cannot be written never stops a result from being imported

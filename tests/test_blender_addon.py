@@ -204,6 +204,8 @@ def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
     estimate = json.loads((Path(run.job_dir) / train_estimate.ESTIMATE_FILE).read_text())
     assert estimate["recipe"] == "plain" and estimate["iterations"] == 30 and estimate["estimated_s"] > 0
     assert "too short" in train_estimate.learn_from_job(run.job_dir)  # 30 steps do not time the machine
+    metrics = json.loads((Path(run.job_dir) / "result" / "metrics.json").read_text())
+    assert metrics["plan"]["backend"] in ("cpu", "reference")  # where learn_from_job reads the renderer a job used
     assert train_estimate.read_timings() == []
 
 

@@ -193,7 +193,7 @@ def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path):
         assert json.loads((folder / te.ESTIMATE_FILE).read_text()) == rec and rec["recipe"] in te.REFERENCES
         # the fields gsgs_engine.reconstruct writes into metrics.json that the estimate reads
         metrics = {"train_seconds": train_s, "iterations": iters if metrics_iters is None else metrics_iters,
-                   "backend": backend}
+                   "plan": {"backend": backend}}
         (folder / "result" / "metrics.json").write_text(json.dumps(metrics))
         return folder
 
