@@ -2,8 +2,8 @@
 
 `--prior auto`, the recipe of this build (the orbit recipe's binocular view every second step, density-guided dropout on LLFF); NeRF-synthetic:
 mean over seeds 0-2 with the seeds' spread as error bars (1000 steps: docs/speed.md's 3-seed bino2 grid, docs/runs/screens_2026-11-26/; 3000
-steps: the *_3000_seed*.metrics.json beside this file); LLFF: seed 0 only (horns: docs/runs/screens_2026-11-26/
-llff_horns_ddrop_seed0 and llff_horns_auto_3000_seed0 here; flower's 3000-step cell ran the earlier uniform dropout).
+steps: the *_3000_seed*.metrics.json beside this file); LLFF: seed 0 only (1000 steps: docs/runs/screens_2026-11-26/
+llff_{flower,horns}_ddrop_seed0; 3000 steps: llff_{flower,horns}_auto_3000_seed0 here).
 """
 import statistics
 
@@ -18,7 +18,7 @@ CELLS = {
                                3000: ([25.30, 25.39, 25.52], [0.096, 0.095, 0.095])},
     "blender_chair (8 views)": {1000: ([27.82, 27.56, 28.09], [0.073, 0.074, 0.072]),
                                 3000: ([28.54, 28.59, 28.60], [0.057, 0.057, 0.055])},
-    "llff_flower (3 views, seed 0)": {1000: ([20.87], [0.304]), 3000: ([21.16], [0.273])},
+    "llff_flower (3 views, seed 0)": {1000: ([20.90], [0.301]), 3000: ([21.01], [0.268])},
     "llff_horns (3 views, seed 0)": {1000: ([20.36], [0.321]), 3000: ([20.52], [0.267])},
 }
 
