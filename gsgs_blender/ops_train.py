@@ -130,8 +130,9 @@ class GSGS_OT_train(bpy.types.Operator):
         scene = context.scene
         try:
             job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
-            estimate = train_estimate.estimate_text(scene)  # stated before the job runs (headless: before it ends)
             inputs = train_estimate.job_estimate_inputs(scene)
+            # stated before the job runs (headless: before it ends)
+            estimate = train_estimate.estimate_text(scene, inputs)
             if inputs is not None:  # what is estimated now; the finished job's time corrects later estimates
                 train_estimate.write_job_estimate(job.root, **inputs)
             scene.gsgs.train_job = stored_path(job.root)

@@ -190,9 +190,10 @@ def format_duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def estimate_text(scene) -> str:
-    """'~N min on this machine ...' for the scene's training cameras and Train fields ('' without cameras)."""
-    inputs = job_estimate_inputs(scene)
+def estimate_text(scene, inputs: dict | None = None) -> str:
+    """'~N min on this machine ...' for the scene's training cameras and Train fields ('' without cameras);
+    `inputs`: job_estimate_inputs(scene) when the caller has it already."""
+    inputs = job_estimate_inputs(scene) if inputs is None else inputs
     if inputs is None:
         return ""
     seconds = estimate_seconds(**inputs)

@@ -518,8 +518,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_seeds(text: str) -> list[int]:
     """--seeds: "N" -> 0 .. N-1, "A-B" -> A .. B, "a,b,c" -> those; seeds are >= 0, at least one."""
-    import argparse as _argparse
-
     text = str(text).strip()
     try:
         if "," in text:
@@ -530,12 +528,12 @@ def parse_seeds(text: str) -> list[int]:
         else:
             count = int(text)
             if count < 1:
-                raise _argparse.ArgumentTypeError(f"--seeds {text}: at least one seed (N >= 1)")
+                raise argparse.ArgumentTypeError(f"--seeds {text}: at least one seed (N >= 1)")
             seeds = list(range(count))
     except ValueError:
-        raise _argparse.ArgumentTypeError(f"--seeds {text!r}: write N (seeds 0 .. N-1), A-B or a list 1,2") from None
+        raise argparse.ArgumentTypeError(f"--seeds {text!r}: write N (seeds 0 .. N-1), A-B or a list 1,2") from None
     if not seeds or min(seeds) < 0:
-        raise _argparse.ArgumentTypeError(f"--seeds {text!r}: seeds are integers >= 0, at least one")
+        raise argparse.ArgumentTypeError(f"--seeds {text!r}: seeds are integers >= 0, at least one")
     return sorted(set(seeds))
 
 
@@ -550,8 +548,6 @@ def _own_arguments(argv: list[str]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """`gsgs bench sparse ...` (gsgs_engine.cli raises GsgsError as one `gsgs: error:` line)."""
-    from gsgs_engine import GsgsError
-
     cluster = None
     if getattr(args, "ray", None):
         from gsgs_engine.cluster.submit import cluster_cells
