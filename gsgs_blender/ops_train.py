@@ -88,6 +88,17 @@ def sparse_points_file(scene) -> str | None:
     return str(path) if path.is_file() else None
 
 
+def probe_machine(context) -> dict | None:
+    """Probe this machine's speed for the time estimate (train_estimate.refresh_probe: about 2 s, at most every
+    PROBE_MAX_AGE_S) when the job will train here on the CPU; None when it will not or cannot be probed."""
+    prefs = get_prefs(context)
+    if getattr(prefs, "run_on", "local") != "local" or getattr(prefs, "device", "auto") == "cuda":
+        return None
+    python = bpy.path.abspath(prefs.python_path) if prefs.python_path else ""
+    engine_root = bpy.path.abspath(prefs.engine_root) if prefs.engine_root else None
+    return train_estimate.refresh_probe(python, engine_root)
+
+
 def _on_train_finished(scene, run) -> None:
     if run.state == "ok":
         print(f"gsgs: time estimate {train_estimate.learn_from_job(run.job_dir)}", flush=True)
@@ -130,6 +141,7 @@ class GSGS_OT_train(bpy.types.Operator):
         scene = context.scene
         try:
             job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
+            probe_machine(context)
             inputs = train_estimate.job_estimate_inputs(scene)
             # stated before the job runs (headless: before it ends)
             estimate = train_estimate.estimate_text(scene, inputs)

@@ -1,35 +1,45 @@
 """A training time estimate the Train panel states before a job starts.
 
-Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine (seed 0, 1000 steps),
-one reference per recipe the engine can run, because they differ more than any single factor allows:
-  - plain 3DGS: LLFF flower, 3 views at 504x378, 271 s (157,697 Gaussians: without the count control
-    real photos grow them unchecked; 2026-11-25, not re-measured since the kernel's faster step of 2026-11-26,
-    so it errs long);
+Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine (seed 0, 1000 steps, two
+threads, one after another with nothing else running, 2026-11-26 20:32-20:40, this build), one reference per recipe
+the engine can run, because they differ more than any single factor allows:
+  - plain 3DGS: LLFF flower, 3 views at 504x378, 125.2 s (151,220 Gaussians: without the count control real
+    photos grow them unchecked);
   - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
     dropout, the binocular shift every second step, no pseudo views): NeRF-synthetic lego, 8 views at 400x400,
-    161 s (2026-11-26, right after the pinned f6f2ab9's cell, 222 s, on an otherwise idle machine);
+    77.7 s;
   - `--prior auto` on a forward-facing rig (density-guided dropout, the binocular shift every step, warp-inpaint
-    pseudo views at half size): LLFF flower at 504x378, 347 s (the same afternoon, after f6f2ab9's 531 s).
-  The machine's day moves these by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and 531 s
-  that afternoon); the references of 2026-11-26 are the same afternoon's, back to back.
+    pseudo views at half size): LLFF flower at 504x378, 187.7 s.
+  The machine's day moves such figures by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and
+  531 s that afternoon, and 319 s the day after): the machine probe below scales them.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
 optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, else forward-facing.
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71 (measured
 between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
-Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3
-photos, balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), 2026-11-26 right after the
-reference cells, nothing else running: the orbit reference gives 200 s (the panel said "~3 min"); the training job
-took 215 s, the whole workflow 246 s (2026-11-25, before the faster kernel step and the orbit recipe's
-binocular view every second step: stated 250 s, trained 262 s, 289 s in all). It is a rough figure
-(scene content, Gaussian counts and the machine's day move it by tens of percent) and the panel says so.
+Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3 photos,
+balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), right after the reference cells with a
+fresh timings log: the references give 96.7 s, the probe (24.3 ms against 22.5) 104.3 s, stated as "~2 min"; the
+job trained in 107.4 s, 123 s end to end. It is a rough figure (scene content and Gaussian counts move it too)
+and the panel says so.
 
 This machine's own jobs correct it: a training job started from the add-on keeps the uncorrected estimate in its
 folder (estimate.json); when it finishes, its measured training seconds are added to a small log beside the
 installed engines (train_timings.jsonl; GSGS_TIMINGS names another file), and later estimates are scaled by the
 median of measured / estimated over the last few jobs of the same recipe (of any recipe while none of it has run).
 Jobs too short to say anything (under MIN_LEARN_ITERS steps or MIN_LEARN_SECONDS) are not learned from.
-Measured (session 9, the Santorini workflow twice on a fresh log, a faster day than the references'): the first run
-stated 200 s and trained 123 s; the second, corrected by the first, stated 123 s and trained 130 s.
+Measured (session 9, the Santorini workflow twice on a fresh log, a faster day than the references of then): the
+first run stated 200 s and trained 123 s; the second, corrected by the first, stated 123 s and trained 130 s.
+
+Before this machine has finished a job the references alone can be tens of percent off (the first run above),
+because a shared virtual machine's speed moves from day to day and a user's machine is not the reference one. So the
+Train operator first probes the machine (`python -m gsgs_engine bench machine`: one fixed render with backward on the
+compiled kernel, about 2 s with the interpreter's start; gsgs_engine/bench/machine_speed.py) and scales the
+references by its time over PROBE_REFERENCE_MS, the same probe on the reference cells' machine and day. The probe is
+kept beside the timings log (machine_probe.json) and re-run when older than PROBE_MAX_AGE_S; the panel shows the
+last one. The learned factor then corrects what the probe leaves (the recipe's content, the Gaussian count).
+Measured (session 10): the probe reads 22-23 ms on an idle machine and 44 ms beside a two-thread training. The
+Santorini workflow on a fresh log with a two-thread training beside it stated 169 s (the probe's factor 1.75) and
+trained in 200.9 s: 16 % short, where the references alone (96.7 s) would have been 52 % short.
 """
 
 from __future__ import annotations
@@ -37,6 +47,7 @@ from __future__ import annotations
 import json
 import os
 import statistics
+import subprocess
 import time
 from pathlib import Path
 
@@ -45,9 +56,9 @@ from gsgs_engine import GsgsError
 REFERENCE_ITERS = 1000
 # recipe -> (seconds for REFERENCE_ITERS steps, pixels of a training view) measured as above
 REFERENCES = {
-    "plain": (271.0, 504 * 378),
-    "orbit": (161.0, 400 * 400),
-    "forward": (347.0, 504 * 378),
+    "plain": (125.2, 504 * 378),
+    "orbit": (77.7, 400 * 400),
+    "forward": (187.7, 504 * 378),
 }
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
@@ -58,6 +69,10 @@ USE_LAST = 5  # jobs a correction is the median of
 MIN_LEARN_ITERS = 100
 MIN_LEARN_SECONDS = 10.0
 FACTOR_RANGE = (0.2, 5.0)  # a correction outside this says more about a broken log than about the machine
+PROBE_FILE = "machine_probe.json"  # beside the timings log: the machine's last speed probe
+PROBE_REFERENCE_MS = 22.5  # `gsgs bench machine` around the reference cells (2 threads): median of 6, 21.9-23.3
+PROBE_MAX_AGE_S = 900.0  # the Train operator probes again after this
+PROBE_TIMEOUT_S = 60.0
 
 
 def train_size(width: int, height: int, resolution_scale: float, max_side: int = 0) -> tuple[int, int]:
@@ -125,6 +140,62 @@ def read_timings(path: Path | None = None) -> list[dict]:
     return records
 
 
+def probe_path() -> Path:
+    return timings_path().with_name(PROBE_FILE)
+
+
+def read_probe(path: Path | None = None) -> dict | None:
+    """The last probe ({"time", "probe_ms", "threads", ...}) or None; a damaged file counts as none."""
+    try:
+        probe = json.loads((probe_path() if path is None else path).read_text())
+        return probe if float(probe["probe_ms"]) > 0 and float(probe["time"]) > 0 else None
+    except (OSError, ValueError, KeyError, TypeError, GsgsError):
+        return None
+
+
+def refresh_probe(python: str, engine_root: str | None = None, max_age_s: float = PROBE_MAX_AGE_S,
+                  path: Path | None = None, timeout: float = PROBE_TIMEOUT_S) -> dict | None:
+    """Probe the machine with the engine's interpreter unless the last probe is younger than max_age_s; returns the
+    probe in use (None when there is none: no interpreter, no built kernel, a timeout). Never raises."""
+    from .job_runner import engine_env
+
+    try:
+        path = probe_path() if path is None else path
+    except GsgsError:
+        return None
+    last = read_probe(path)
+    if last is not None and 0 <= time.time() - float(last["time"]) < max_age_s:
+        return last
+    if not python:
+        return last
+    try:
+        done = subprocess.run([python, "-m", "gsgs_engine", "bench", "machine"], env=engine_env(engine_root),
+                              capture_output=True, text=True, timeout=timeout)
+        lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+        result = json.loads(lines[-1]) if lines else {}
+    except (OSError, ValueError, subprocess.SubprocessError):
+        return last
+    if not (isinstance(result.get("probe_ms"), (int, float)) and result["probe_ms"] > 0):
+        return last  # e.g. {"error": "the compiled CPU kernel is not built yet ..."}
+    probe = {"time": time.time(), **result}
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(probe))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # used for this estimate all the same
+    return probe
+
+
+def probe_factor(path: Path | None = None) -> float:
+    """The last probe's time over PROBE_REFERENCE_MS (clamped to FACTOR_RANGE); 1.0 without a probe."""
+    probe = read_probe(path)
+    if probe is None or not PROBE_REFERENCE_MS:
+        return 1.0
+    return min(max(float(probe["probe_ms"]) / PROBE_REFERENCE_MS, FACTOR_RANGE[0]), FACTOR_RANGE[1])
+
+
 def machine_factor(kind: str, path: Path | None = None) -> tuple[float, int]:
     """(measured / estimated, jobs it comes from) for recipe `kind` on this machine; (1.0, 0) before any job."""
     records = read_timings(path)
@@ -138,11 +209,13 @@ def machine_factor(kind: str, path: Path | None = None) -> tuple[float, int]:
 
 def write_job_estimate(job_dir, iterations: int, width: int, height: int, resolution_scale: float, generator: str,
                        max_side: int = 0, cameras=None) -> dict:
-    """Keep the uncorrected estimate of a job about to start in its folder (estimate.json); returns it."""
+    """Keep the estimate of a job about to start in its folder (estimate.json): the references scaled by the last
+    probe, before the learned correction, which it will then teach; returns it."""
+    reference_s = estimate_seconds(iterations, width, height, resolution_scale, generator, max_side, cameras)
+    speed = probe_factor()
     record = {"recipe": recipe(generator, cameras), "iterations": int(iterations),
               "size": list(train_size(width, height, resolution_scale, max_side)),
-              "estimated_s": estimate_seconds(iterations, width, height, resolution_scale, generator, max_side,
-                                              cameras)}
+              "reference_s": reference_s, "probe_factor": speed, "estimated_s": reference_s * speed}
     try:
         (Path(job_dir) / ESTIMATE_FILE).write_text(json.dumps(record))
     except OSError:  # the job runs all the same; it is only not learned from
@@ -200,9 +273,14 @@ def estimate_text(scene, inputs: dict | None = None) -> str:
     w, h = train_size(inputs["width"], inputs["height"], inputs["resolution_scale"], inputs["max_side"])
     kind = recipe(inputs["generator"], inputs["cameras"])
     factor, jobs = machine_factor(kind)
+    probed = read_probe() is not None and bool(PROBE_REFERENCE_MS)
+    factor *= probe_factor()
     name = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[kind]
-    where = (f"on this machine, from {jobs} finished job{'s' if jobs != 1 else ''}" if jobs else
-             "on a 2-core CPU")
+    finished = f"{jobs} finished job{'s' if jobs != 1 else ''}"
+    if probed:
+        where = "on this machine (its speed probed" + (f", corrected by {finished})" if jobs else ")")
+    else:
+        where = f"on this machine, from {finished}" if jobs else "on a 2-core CPU"
     return (f"~{format_duration(seconds * factor)} {where} ({inputs['iterations']} steps of {name} on {w}x{h} px; "
             "a GPU is far faster)")
 

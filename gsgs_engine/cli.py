@@ -33,6 +33,8 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
                    "sparse-view protocols' training views, one JSON line per scene"),
     "dense-init": ("gsgs_engine.bench.dense_init", "one cell: plain 3DGS from the SfM points vs from the dense (MVS) "
                    "initialisation"),
+    "machine": ("gsgs_engine.bench.machine_speed", "this machine's speed on one fixed render (one JSON line), for the "
+                "add-on's training-time estimate"),
     "pseudo-targets": ("gsgs_engine.bench.pseudo_targets", "warp-inpaint pseudo targets vs the render at held-out "
                        "views of a trained result"),
 }

@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     import bpy
 
     import gsgs_blender
-    from gsgs_blender import preferences, pseudo_paths, train_estimate
+    from gsgs_blender import ops_train, preferences, pseudo_paths, train_estimate
     from gsgs_engine.job import Job
 
     out = Path(args.out).resolve()
@@ -100,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
             s.generator = args.prior
         if s.generator == "none" and len(pseudo_paths.poses_from_json(s.pseudo_poses)):
             print("reconstruct: note: the path's pseudo poses are used only with a prior (--prior auto)", flush=True)
+        ops_train.probe_machine(bpy.context)  # the estimate follows this machine's measured speed
         print(f"reconstruct: training {s.iterations} iterations (preset {s.preset}); estimated "
               f"{train_estimate.estimate_text(scene)}", flush=True)
         bpy.ops.gsgs.train(timeout=args.timeout)

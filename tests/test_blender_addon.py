@@ -203,6 +203,8 @@ def test_train_operator_headless_runs_the_engine_and_imports_the_result(addon):
 
     estimate = json.loads((Path(run.job_dir) / train_estimate.ESTIMATE_FILE).read_text())
     assert estimate["recipe"] == "plain" and estimate["iterations"] == 30 and estimate["estimated_s"] > 0
+    # scaled by the machine probe the operator ran first (1.0 where the kernel was not built yet to probe with)
+    assert estimate["estimated_s"] == pytest.approx(estimate["reference_s"] * estimate["probe_factor"])
     assert "too short" in train_estimate.learn_from_job(run.job_dir)  # 30 steps do not time the machine
     metrics = json.loads((Path(run.job_dir) / "result" / "metrics.json").read_text())
     assert metrics["plan"]["backend"] in ("cpu", "reference")  # where learn_from_job reads the renderer a job used
