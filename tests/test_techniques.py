@@ -209,6 +209,36 @@ def test_binocular_warp_with_true_depth_reproduces_the_view():
     assert masked_l1(wrong, img, valid_w) > 5 * masked_l1(warped, img, valid)  # wrong depth costs
 
 
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_binocular_disparity_warp_equals_the_general_reprojection(scale):
+    """The shifted view's warp as a disparity along x gives what priors.warp.backward_warp's reprojection through
+    world space gives: the same samples, the same valid pixels and the same depth gradient (a full-size and a
+    half-size shifted render; depths with holes, a non-finite and a negative value)."""
+    from gsgs_engine.priors.warp import backward_warp
+    from gsgs_engine.train.techniques.binocular import shifted_camera, warp_shifted_to_view
+
+    g = torch.Generator().manual_seed(3)
+    cam = look_at((0.3, -4.0, 0.5), target=(0.0, 0.0, 0.2), size=40)
+    shifted = shifted_camera(cam, -0.35)
+    if scale != 1.0:
+        shifted = shifted.scaled(scale)
+    image = torch.rand(shifted.height, shifted.width, 3, generator=g)
+    depth = 3.0 + 2.0 * torch.rand(40, 40, generator=g)
+    depth[5, 5], depth[6, 7], depth[8, 9] = 0.0, float("nan"), -1.0
+    d1 = depth.clone().requires_grad_()
+    d2 = depth.clone().requires_grad_()
+    fast, valid_fast = warp_shifted_to_view(cam, d1, shifted, image)
+    slow, valid_slow = backward_warp(cam, d2, shifted, image)
+    assert torch.equal(valid_fast, valid_slow) and 0.5 < valid_fast.float().mean() < 1.0
+    torch.testing.assert_close(fast[valid_fast], slow[valid_slow], atol=1e-5, rtol=0)
+    weights = torch.rand(40, 40, 3, generator=g) * valid_fast[..., None]
+    (fast * weights).sum().backward()
+    (slow * weights).sum().backward()
+    ok = valid_fast & torch.isfinite(depth)
+    torch.testing.assert_close(d1.grad[ok], d2.grad[ok], atol=1e-4, rtol=1e-3)
+    assert torch.isfinite(d1.grad).all()
+
+
 def test_binocular_baseline_is_a_tenth_of_the_depth_capped_by_the_rig():
     from gsgs_engine import GsgsError
     from gsgs_engine.train.techniques.binocular import BinocularConsistency, rig_baseline, scene_depth

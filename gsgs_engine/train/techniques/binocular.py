@@ -3,8 +3,8 @@
 From `start_fraction` of the run on, each step moves the training camera along its own x axis
 by a random baseline b (|b| uniform in [0, max_baseline], random sign), renders that shifted
 view, and warps it back into the training view with the depth rendered at the training view
-(for a pure x shift the warp is the disparity d = f b / z; `priors.warp.backward_warp` does the
-general reprojection, which reduces to exactly that). Two terms:
+(for a pure x shift the warp is the disparity d = f b / z, which `warp_shifted_to_view` applies directly;
+`priors.warp.backward_warp`'s general reprojection reduces to it). Two terms:
 
 - "binocular_l1": L1 between the warped shifted render and the training photo, over the pixels
   the warp sees (inside the shifted image, in front of it, where the training render is opaque),
@@ -41,6 +41,7 @@ from dataclasses import replace
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
@@ -68,10 +69,34 @@ def surface_depth(depth: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
 
 def warp_shifted_to_view(camera: Camera, depth: torch.Tensor, shifted: Camera, shifted_image: torch.Tensor
                          ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The shifted view's image resampled into `camera` with `camera`'s z-depth: (image (H, W, 3), valid (H, W))."""
+    """The shifted view's image resampled into `camera` with `camera`'s z-depth: (image (H, W, 3), valid (H, W)).
+
+    `shifted` is `camera` moved along its own x axis (shifted_camera), possibly resized (Camera.scaled): a pixel
+    (u, v) at z-depth z lands at u' = fx' ((u - cx) / fx - b / z) + cx', v' = fy' (v - cy) / fy + cy' (rectified
+    stereo: the disparity f b / z along x alone). That is what priors.warp.backward_warp's reprojection through
+    world space reduces to, in a few image-sized operations instead of two 3x3 products per pixel and their
+    backward (tested equal). Any other pair of cameras goes through backward_warp."""
     from gsgs_engine.priors.warp import backward_warp
 
-    return backward_warp(camera, depth, shifted, shifted_image)
+    dt = np.asarray(camera.t, dtype=np.float64) - np.asarray(shifted.t, dtype=np.float64)
+    if not (np.array_equal(np.asarray(camera.R), np.asarray(shifted.R)) and dt[1] == 0.0 and dt[2] == 0.0):
+        return backward_warp(camera, depth, shifted, shifted_image)
+    baseline = float(dt[0])
+    h, w = depth.shape
+    u = torch.arange(w, dtype=depth.dtype, device=depth.device) + 0.5
+    v = torch.arange(h, dtype=depth.dtype, device=depth.device) + 0.5
+    safe_z = torch.where(depth.abs() > 1e-9, depth, torch.full_like(depth, 1e-9))
+    x_over_z = ((u - camera.cx) / camera.fx)[None, :] - baseline / safe_z  # (H, W): x / z in the shifted camera
+    hs, ws = shifted_image.shape[:2]
+    # grid_sample's align_corners=False maps -1/+1 to the outer pixel edges: exactly u / W.
+    gx = (shifted.fx * x_over_z + shifted.cx) / ws * 2 - 1
+    gy = ((shifted.fy * (v - camera.cy) / camera.fy + shifted.cy) / hs * 2 - 1)[:, None].expand(h, w)
+    grid = torch.nan_to_num(torch.stack([gx, gy], dim=-1)[None].to(shifted_image.dtype), nan=-2.0, posinf=-2.0,
+                            neginf=-2.0)
+    img = shifted_image.permute(2, 0, 1)[None]
+    sampled = F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)[0].permute(1, 2, 0)
+    valid = (depth > 1e-6) & (grid.abs() <= 1).all(dim=-1)[0]
+    return sampled, valid
 
 
 def masked_l1(image: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
