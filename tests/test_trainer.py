@@ -279,6 +279,11 @@ def test_random_background_recomposites_the_target():
     bg = torch.tensor([0.0, 0.0, 1.0])
     target = trainer._target(0, bg.to(trainer.device)).cpu()  # the trainer's device: cuda where gsplat works
     assert torch.allclose(target[0, 0], bg) and torch.allclose(target[16, 16], torch.tensor([1.0, 0.0, 0.0]))
+    # the photo's premultiplied part is made once per view: later steps' targets are those of the formula, to the bit
+    for other in (torch.tensor([0.2, 0.7, 0.1]), bg):
+        a = trainer._alphas[0][..., None]
+        expected = (trainer._targets[0] - trainer.background * (1 - a)) + other.to(trainer.device) * (1 - a)
+        assert torch.equal(trainer._target(0, other.to(trainer.device)), expected)
 
 
 def test_random_background_behind_rgb_photos_keeps_the_photo_and_learns_opaque_splats():

@@ -243,6 +243,7 @@ class Trainer:
         self.extent = self._extent()
         self.size_extent = self.extent  # set from the initial points in setup()
         self._targets, self._alphas = self._load_targets()
+        self._premultiplied: list[tuple[torch.Tensor, torch.Tensor] | None] = [None] * len(self._targets)
         self._config_as_set_up: TrainConfig | None = None  # see setup()
         self._kernel_start: dict[str, float] | None = None  # the kernel's phase clocks when training started
         self._reduced_targets: dict[tuple, torch.Tensor] = {}  # coarse-to-fine: (view, w, h) -> area-averaged photo
@@ -386,11 +387,14 @@ class Trainer:
         alpha = self._alphas[i]
         if alpha is None or background is self.background:
             return self._targets[i]
-        # un-composite from the scene background and re-composite on this step's background
-        background = background.to(self.device)
-        a = alpha[..., None]
-        rgb_premul = self._targets[i] - self.background * (1 - a)
-        return rgb_premul + background * (1 - a)
+        # un-composite from the scene background and re-composite on this step's background; the photo's part
+        # (premultiplied colour, 1 - alpha) is the same at every step, so it is made once per view (the same
+        # operations in the same order: the target is bit-identical to forming it every step)
+        if self._premultiplied[i] is None:
+            one_minus = 1 - alpha[..., None]
+            self._premultiplied[i] = (self._targets[i] - self.background * one_minus, one_minus)
+        rgb_premul, one_minus = self._premultiplied[i]
+        return rgb_premul + background.to(self.device) * one_minus
 
     def step_scale(self, step: int) -> float:
         """Render scale of the training view at 1-based `step` (coarse-to-fine; 1.0 when off)."""
