@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -434,6 +435,8 @@ def test_reconstruct_script_end_to_end(tmp_path):
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     assert (tmp_path / "out" / "scene.blend").is_file()
     assert "reconstruct: ok" in out.stdout and " splats, " in out.stdout
+    # stated before training, after the machine probe (which leaves it unprobed while the kernel is not built yet)
+    assert re.search(r"estimated ~.* on (this machine \(its speed probed\)|a 2-core CPU)", out.stdout), out.stdout
     train_jobs = list((tmp_path / "out" / "jobs").glob("train-*/job.json"))
     assert len(train_jobs) == 1 and len(json.loads(train_jobs[0].read_text())["pseudo_poses"]) == 4
 
