@@ -78,8 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     if run is None:
         parser.print_help()
         return 0 if not argv else 2
+    from gsgs_engine.allocator import keep_freed_memory
     from gsgs_engine.write_errors import describe_os_error, sigterm_interrupts
 
+    keep_freed_memory()  # a step's tensors reuse the previous step's memory (allocator.py)
     try:
         with sigterm_interrupts():  # SIGTERM unwinds like Ctrl-C: status.json says cancelled, workers stop
             return int(run(args) or 0)
