@@ -20,6 +20,10 @@ now runs on sparse static views (dense MVS init, the techniques count_control, d
 opacity_decay, and warp-inpaint pseudo views on forward-facing rigs only): llff_flower 3 views at
 half resolution 16.84 -> 20.46 dB (251 s vs 306 s), lego_200 8 views 22.83 -> 25.36 dB (88 s vs 57 s).
 So balanced and best use `prior auto` (dense captures get none of it: the plan sees they are not sparse); fast stays plain 3DGS.
+The steps of `--prior auto` on the protocols over seeds 0-2 (2-core CPU; docs/speed.md, "Accuracy against steps"):
+NeRF-synthetic 26.12 -> 26.99 dB and LLFF 20.65 -> 20.86 from 1000 to 3000 steps, LPIPS 0.02-0.04 better; lego at
+10000 steps (seed 0) 25.37 against 25.30 at 3000, for 3.3x the time. So balanced = 1000 and best = 3000 stand, and no
+preset trains longer.
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,
