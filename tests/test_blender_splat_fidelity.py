@@ -177,7 +177,7 @@ def test_training_estimate_reproduces_its_reference_runs():
     assert est(1000, 1600, 850, 1.0, "none", 800) == pytest.approx(est(1000, 800, 425, 1.0, "none"))
 
 
-def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path):
+def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path, monkeypatch):
     """A job keeps its uncorrected estimate; its measured seconds, once finished, scale later estimates of its recipe
     (the median of the last few), and jobs that cannot time the machine are not learned from."""
     import json
@@ -185,6 +185,8 @@ def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path):
     from gsgs_blender import train_estimate as te
 
     log = tmp_path / "timings.jsonl"
+    monkeypatch.setenv("GSGS_TIMINGS", str(log))  # no machine probe beside it: the references unscaled
+    assert te.read_probe() is None
     assert te.machine_factor("orbit", log) == (1.0, 0)
 
     def job(name: str, iters: int, train_s: float, generator: str = "none", backend: str = "cpu",
