@@ -60,6 +60,9 @@ REFERENCES = {
     "orbit": (77.7, 400 * 400),
     "forward": (187.7, 504 * 378),
 }
+# The orbit recipe of long schedules renders the binocular view at every step, not every second one: lego auto at
+# 1000 steps took 201 s that way against 157 s, back to back on a quiet machine (2026-11-26, docs/speed.md).
+ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 TIMINGS_FILE = "train_timings.jsonl"
@@ -106,7 +109,12 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
                      max_side: int = 0, cameras=None) -> float:
     """Rough CPU seconds of a training run of `iterations` steps on views of width x height, from the reference
     runs alone (`machine_factor` corrects it for this machine)."""
-    seconds, ref_pixels = REFERENCES[recipe(generator, cameras)]
+    from gsgs_engine.effect_plan import AUTO_ORBIT_LONG_STEPS
+
+    kind = recipe(generator, cameras)
+    seconds, ref_pixels = REFERENCES[kind]
+    if kind == "orbit" and iterations >= AUTO_ORBIT_LONG_STEPS:  # the shifted view at every step (effect_plan)
+        seconds *= ORBIT_EVERY_STEP_FACTOR
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
     per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT

@@ -167,6 +167,8 @@ def test_training_estimate_reproduces_its_reference_runs():
     assert train_estimate.recipe("auto", orbit) == "orbit" and train_estimate.recipe("auto", forward) == "forward"
     assert train_estimate.recipe("none", orbit) == "plain" and train_estimate.recipe("warp", orbit) == "forward"
     assert est(1000, 400, 400, 1.0, "auto", cameras=orbit) == pytest.approx(77.7)  # lego auto, 400 px
+    # 3000 steps or more of the orbit recipe: the shifted view at every step (effect_plan), 1.28x a step
+    assert est(3000, 400, 400, 1.0, "auto", cameras=orbit) == pytest.approx(3 * 77.7 * 201.0 / 157.0)
     # the check it was not fitted to: the Santorini workflow (640x340, orbit) trained in 107.4 s right after the
     # reference cells (2026-11-26, session 10)
     assert est(1000, 640, 340, 1.0, "auto", cameras=orbit) == pytest.approx(107.4, rel=0.15)
