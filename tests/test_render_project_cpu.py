@@ -139,6 +139,39 @@ def test_hard_cases_match_the_oracle(project_cpu, dtype, tol):
     check(results, tol, f"hard cases {dtype}")
 
 
+def _projection_and_gradients(project_cpu, params, camera, degree):
+    leaves = [p.clone().requires_grad_(True) for p in params]
+    p = project_cpu(*leaves[:3], camera, leaves[3], sh_degree=degree)
+    g = torch.Generator().manual_seed(degree)
+    loss = sum((getattr(p, f) * torch.randn(getattr(p, f).shape, generator=g)).sum() for f in FIELDS)
+    loss.backward()
+    return [p.radii] + [getattr(p, f) for f in FIELDS] + [x.grad for x in leaves]
+
+
+@pytest.mark.parametrize("degree", [0, 1, 3])
+def test_eight_lanes_equal_one_lane_bit_for_bit(project_cpu, degree):
+    """float32 projects eight Gaussians at a time; the one-lane code (the same source) must give the same bits,
+    hard cases included (zero / NaN / behind / huge / needles), for counts that leave a one-lane tail."""
+    ops = cpu_backend._ops()
+    hard = hard_cases(torch.float32)
+    for n, camera in ((403, tilted_camera()), (21, None)):
+        params = random_gaussians(20 + degree, n, torch.float32, log_scale_sd=1.0)
+        if camera is None:  # the hard cases, repeated so they fill whole eight-lane groups
+            params = [torch.cat([h] * 2 + [r[: n - 2 * len(h)]]) for h, r in zip(hard, params)]
+            camera = Camera(R=np.eye(3), t=np.array([0.0, 0.0, 4.0]), fx=60.0, fy=60.0, cx=32.0, cy=24.0,
+                            width=64, height=48)
+        previous = ops.project_lane_width(1)
+        try:
+            one = _projection_and_gradients(project_cpu, params, camera, degree)
+        finally:
+            ops.project_lane_width(previous)
+        assert previous == 8, "eight lanes are the default"
+        eight = _projection_and_gradients(project_cpu, params, camera, degree)
+        for a, b in zip(one, eight):
+            assert torch.equal(torch.nan_to_num(a, nan=7.0), torch.nan_to_num(b, nan=7.0))
+            assert torch.equal(torch.isnan(a), torch.isnan(b))
+
+
 def test_tiny_images(project_cpu):
     for w, h in ((1, 1), (2, 1), (1, 3)):
         cam = Camera(R=np.eye(3), t=np.array([0.0, 0.0, 4.0]), fx=2.0, fy=2.0, cx=w / 2, cy=h / 2, width=w, height=h)

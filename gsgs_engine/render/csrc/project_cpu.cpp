@@ -19,10 +19,13 @@
 #include <torch/library.h>
 
 #include "hot.h"
+#include "project_lanes.h"
 
 #include "phase_timer.h"
 
 #include <algorithm>
+#include <atomic>
+#include <type_traits>
 #include <cmath>
 #include <cstdint>
 #include <tuple>
@@ -84,63 +87,72 @@ Cam<S> make_cam(const at::Tensor& cam, double fx, double fy, double cx, double c
   return k;
 }
 
-template <typename S>
-inline __attribute__((always_inline)) S rsqrt_clamped(S v, S eps) {
-  return S(1) / std::sqrt(std::max(v, eps));
+using gsgs_lanes::Eight;
+using gsgs_lanes::One;
+
+// 1 / sqrt(max(v, eps)).
+template <typename L>
+GSGS_LANE_INLINE typename L::T rsqrt_clamped(typename L::T v, typename L::S eps) {
+  return typename L::S(1) / L::sqrt(L::max(v, L::splat(eps)));
 }
 
 // Rotation matrix (row-major) of a unit quaternion (w, x, y, z), as project.quat_to_rotmat.
-template <typename S>
-inline __attribute__((always_inline)) void rotmat(S w, S x, S y, S z, S* R) {
-  R[0] = 1 - 2 * (y * y + z * z);
-  R[1] = 2 * (x * y - w * z);
-  R[2] = 2 * (x * z + w * y);
-  R[3] = 2 * (x * y + w * z);
-  R[4] = 1 - 2 * (x * x + z * z);
-  R[5] = 2 * (y * z - w * x);
-  R[6] = 2 * (x * z - w * y);
-  R[7] = 2 * (y * z + w * x);
-  R[8] = 1 - 2 * (x * x + y * y);
+template <typename L>
+GSGS_LANE_INLINE void rotmat(typename L::T w, typename L::T x, typename L::T y, typename L::T z, typename L::T* R) {
+  using S = typename L::S;
+  R[0] = S(1) - S(2) * (y * y + z * z);
+  R[1] = S(2) * (x * y - w * z);
+  R[2] = S(2) * (x * z + w * y);
+  R[3] = S(2) * (x * y + w * z);
+  R[4] = S(1) - S(2) * (x * x + z * z);
+  R[5] = S(2) * (y * z - w * x);
+  R[6] = S(2) * (x * z - w * y);
+  R[7] = S(2) * (y * z + w * x);
+  R[8] = S(1) - S(2) * (x * x + y * y);
 }
 
 // SH basis values (sh.py's eval_sh, term by term) along a unit direction; returns the count used.
-template <typename S>
-inline __attribute__((always_inline)) int sh_basis(int degree, S x, S y, S z, S* b) {
-  b[0] = static_cast<S>(SH_C0);
+template <typename L>
+GSGS_LANE_INLINE int sh_basis(int degree, typename L::T x, typename L::T y, typename L::T z, typename L::T* b) {
+  using S = typename L::S;
+  b[0] = L::splat(static_cast<S>(SH_C0));
   if (degree == 0) return 1;
   const S c1 = static_cast<S>(SH_C1);
   b[1] = -c1 * y;
   b[2] = c1 * z;
   b[3] = -c1 * x;
   if (degree == 1) return 4;
-  const S xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+  const typename L::T xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
   b[4] = static_cast<S>(SH_C2[0]) * xy;
   b[5] = static_cast<S>(SH_C2[1]) * yz;
-  b[6] = static_cast<S>(SH_C2[2]) * (2 * zz - xx - yy);
+  b[6] = static_cast<S>(SH_C2[2]) * (S(2) * zz - xx - yy);
   b[7] = static_cast<S>(SH_C2[3]) * xz;
   b[8] = static_cast<S>(SH_C2[4]) * (xx - yy);
   if (degree == 2) return 9;
-  b[9] = static_cast<S>(SH_C3[0]) * y * (3 * xx - yy);
+  b[9] = static_cast<S>(SH_C3[0]) * y * (S(3) * xx - yy);
   b[10] = static_cast<S>(SH_C3[1]) * xy * z;
-  b[11] = static_cast<S>(SH_C3[2]) * y * (4 * zz - xx - yy);
-  b[12] = static_cast<S>(SH_C3[3]) * z * (2 * zz - 3 * xx - 3 * yy);
-  b[13] = static_cast<S>(SH_C3[4]) * x * (4 * zz - xx - yy);
+  b[11] = static_cast<S>(SH_C3[2]) * y * (S(4) * zz - xx - yy);
+  b[12] = static_cast<S>(SH_C3[3]) * z * (S(2) * zz - S(3) * xx - S(3) * yy);
+  b[13] = static_cast<S>(SH_C3[4]) * x * (S(4) * zz - xx - yy);
   b[14] = static_cast<S>(SH_C3[5]) * z * (xx - yy);
-  b[15] = static_cast<S>(SH_C3[6]) * x * (xx - 3 * yy);
+  b[15] = static_cast<S>(SH_C3[6]) * x * (xx - S(3) * yy);
   return 16;
 }
 
 // d(basis_k)/d(x, y, z) for k < count, as rows [k][3].
-template <typename S>
-inline __attribute__((always_inline)) void sh_basis_grad(int degree, S x, S y, S z, S (*d)[3]) {
-  for (int k = 0; k < 16; ++k) d[k][0] = d[k][1] = d[k][2] = 0;
+template <typename L>
+GSGS_LANE_INLINE void sh_basis_grad(int degree, typename L::T x, typename L::T y, typename L::T z,
+                                    typename L::T (*d)[3]) {
+  using S = typename L::S;
+  const typename L::T zero = L::splat(S(0));
+  for (int k = 0; k < 16; ++k) d[k][0] = d[k][1] = d[k][2] = zero;
   if (degree == 0) return;
   const S c1 = static_cast<S>(SH_C1);
-  d[1][1] = -c1;
-  d[2][2] = c1;
-  d[3][0] = -c1;
+  d[1][1] = L::splat(-c1);
+  d[2][2] = L::splat(c1);
+  d[3][0] = L::splat(-c1);
   if (degree == 1) return;
-  const S xx = x * x, yy = y * y, zz = z * z;
+  const typename L::T xx = x * x, yy = y * y, zz = z * z;
   const S a0 = static_cast<S>(SH_C2[0]), a1 = static_cast<S>(SH_C2[1]), a2 = static_cast<S>(SH_C2[2]),
           a3 = static_cast<S>(SH_C2[3]), a4 = static_cast<S>(SH_C2[4]);
   d[4][0] = a0 * y, d[4][1] = a0 * x;
@@ -152,79 +164,99 @@ inline __attribute__((always_inline)) void sh_basis_grad(int degree, S x, S y, S
   const S b0 = static_cast<S>(SH_C3[0]), b1 = static_cast<S>(SH_C3[1]), b2 = static_cast<S>(SH_C3[2]),
           b3 = static_cast<S>(SH_C3[3]), b4 = static_cast<S>(SH_C3[4]), b5 = static_cast<S>(SH_C3[5]),
           b6 = static_cast<S>(SH_C3[6]);
-  d[9][0] = b0 * 6 * x * y, d[9][1] = b0 * (3 * xx - 3 * yy);
+  d[9][0] = b0 * 6 * x * y, d[9][1] = b0 * (S(3) * xx - S(3) * yy);
   d[10][0] = b1 * y * z, d[10][1] = b1 * x * z, d[10][2] = b1 * x * y;
-  d[11][0] = b2 * (-2 * x * y), d[11][1] = b2 * (4 * zz - xx - 3 * yy), d[11][2] = b2 * 8 * y * z;
-  d[12][0] = b3 * (-6 * x * z), d[12][1] = b3 * (-6 * y * z), d[12][2] = b3 * (6 * zz - 3 * xx - 3 * yy);
-  d[13][0] = b4 * (4 * zz - 3 * xx - yy), d[13][1] = b4 * (-2 * x * y), d[13][2] = b4 * 8 * x * z;
-  d[14][0] = b5 * 2 * x * z, d[14][1] = b5 * (-2 * y * z), d[14][2] = b5 * (xx - yy);
-  d[15][0] = b6 * (3 * xx - 3 * yy), d[15][1] = b6 * (-6 * x * y);
+  d[11][0] = b2 * (S(-2) * x * y), d[11][1] = b2 * (S(4) * zz - xx - S(3) * yy), d[11][2] = b2 * 8 * y * z;
+  d[12][0] = b3 * (S(-6) * x * z), d[12][1] = b3 * (S(-6) * y * z), d[12][2] = b3 * (S(6) * zz - S(3) * xx - S(3) * yy);
+  d[13][0] = b4 * (S(4) * zz - S(3) * xx - yy), d[13][1] = b4 * (S(-2) * x * y), d[13][2] = b4 * 8 * x * z;
+  d[14][0] = b5 * 2 * x * z, d[14][1] = b5 * (S(-2) * y * z), d[14][2] = b5 * (xx - yy);
+  d[15][0] = b6 * (S(3) * xx - S(3) * yy), d[15][1] = b6 * (S(-6) * x * y);
 }
 
-// Everything of one Gaussian's projection the backward needs again (recomputed there, not stored).
-template <typename S>
+// Everything of one Gaussian's projection (one per lane) the backward needs again (recomputed there, not stored).
+template <typename L>
 struct Proj {
-  bool in_range, ok;
-  S x, y, z;          // camera-space mean (safe point (0, 0, 1) when out of range)
-  S txtz, tytz;       // unclamped x/z, y/z
-  S J[6];             // 2x3
-  S JW[6];            // J @ W, 2x3
-  S Rq[9];            // rotation of the normalised quaternion
-  S qn[4], q_inv;     // normalised quaternion and 1 / |q| (clamped)
-  S M[9];             // Rq * diag(scales)
-  S U[6];             // JW @ M
-  S a, b, c, det;     // undilated covariance entries and the dilated determinant
-  S a_s, b_s, c_s, det_s;
+  using T = typename L::T;
+  T m[3], q[4], s[3];  // the inputs: mean, quaternion, scales
+  typename L::M in_range, ok;
+  T x, y, z;          // camera-space mean (safe point (0, 0, 1) when out of range)
+  T txtz, tytz;       // unclamped x/z, y/z
+  T J[6];             // 2x3
+  T JW[6];            // J @ W, 2x3
+  T Rq[9];            // rotation of the normalised quaternion
+  T qn[4], q_inv;     // normalised quaternion and 1 / |q| (clamped)
+  T M[9];             // Rq * diag(scales)
+  T U[6];             // JW @ M
+  T a, b, c, det;     // undilated covariance entries and the dilated determinant
+  T a_s, b_s, c_s, det_s;
 };
 
-template <typename S>
-inline __attribute__((always_inline)) void project_one(const Cam<S>& k, const S* m, const S* q, const S* s, Proj<S>& p) {
+// The clamped tx/tz and ty/tz of the EWA Jacobian.
+template <typename L>
+GSGS_LANE_INLINE typename L::T clamp_x(const Cam<typename L::S>& k, typename L::T txtz) {
+  return L::min(L::max(txtz, L::splat(-k.lim_left)), L::splat(k.lim_right));
+}
+template <typename L>
+GSGS_LANE_INLINE typename L::T clamp_y(const Cam<typename L::S>& k, typename L::T tytz) {
+  return L::min(L::max(tytz, L::splat(-k.lim_top)), L::splat(k.lim_bottom));
+}
+
+// Gaussians g .. g + L::kWidth - 1 of the means [N, 3], quaternions [N, 4] and scales [N, 3].
+template <typename L>
+GSGS_LANE_INLINE void project_one(const Cam<typename L::S>& k, const typename L::S* mp, const typename L::S* qp,
+                                  const typename L::S* sp, int64_t g, Proj<L>& p) {
+  using S = typename L::S;
+  using T = typename L::T;
+  for (int i = 0; i < 3; ++i) p.m[i] = L::load(mp, 3, g, i);
+  for (int i = 0; i < 4; ++i) p.q[i] = L::load(qp, 4, g, i);
+  for (int i = 0; i < 3; ++i) p.s[i] = L::load(sp, 3, g, i);
+  const T *m = p.m, *q = p.q, *s = p.s;
   const S* R = k.R;
-  S pc[3];
+  T pc[3];
   for (int r = 0; r < 3; ++r) pc[r] = R[3 * r] * m[0] + R[3 * r + 1] * m[1] + R[3 * r + 2] * m[2] + k.t[r];
-  p.in_range = pc[2] > k.near_ && pc[2] < k.far_ && std::isfinite(pc[0]) && std::isfinite(pc[1]) &&
-               std::isfinite(pc[2]);
-  p.x = p.in_range ? pc[0] : S(0);
-  p.y = p.in_range ? pc[1] : S(0);
-  p.z = p.in_range ? pc[2] : S(1);
-  const S x = p.x, y = p.y, z = p.z;
+  p.in_range = L::both(L::both(L::both(pc[2] > L::splat(k.near_), pc[2] < L::splat(k.far_)),
+                               L::both(L::finite(pc[0]), L::finite(pc[1]))), L::finite(pc[2]));
+  p.x = L::sel(p.in_range, pc[0], L::splat(S(0)));
+  p.y = L::sel(p.in_range, pc[1], L::splat(S(0)));
+  p.z = L::sel(p.in_range, pc[2], L::splat(S(1)));
+  const T x = p.x, y = p.y, z = p.z;
   p.txtz = x / z;
   p.tytz = y / z;
-  const S cxz = std::min(std::max(p.txtz, -k.lim_left), k.lim_right);
-  const S cyz = std::min(std::max(p.tytz, -k.lim_top), k.lim_bottom);
+  const T cxz = clamp_x<L>(k, p.txtz);
+  const T cyz = clamp_y<L>(k, p.tytz);
   p.J[0] = k.fx / z;
-  p.J[1] = 0;
+  p.J[1] = L::splat(S(0));
   p.J[2] = -k.fx * cxz / z;
-  p.J[3] = 0;
+  p.J[3] = L::splat(S(0));
   p.J[4] = k.fy / z;
   p.J[5] = -k.fy * cyz / z;
   for (int r = 0; r < 2; ++r)
     for (int col = 0; col < 3; ++col)
       p.JW[3 * r + col] = p.J[3 * r] * R[col] + p.J[3 * r + 1] * R[3 + col] + p.J[3 * r + 2] * R[6 + col];
 
-  const S qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-  p.q_inv = rsqrt_clamped(qq, static_cast<S>(kQuatEps));
+  const T qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+  p.q_inv = rsqrt_clamped<L>(qq, static_cast<S>(kQuatEps));
   for (int i = 0; i < 4; ++i) p.qn[i] = q[i] * p.q_inv;
-  rotmat(p.qn[0], p.qn[1], p.qn[2], p.qn[3], p.Rq);
+  rotmat<L>(p.qn[0], p.qn[1], p.qn[2], p.qn[3], p.Rq);
   for (int r = 0; r < 3; ++r)
     for (int col = 0; col < 3; ++col) p.M[3 * r + col] = p.Rq[3 * r + col] * s[col];
   for (int r = 0; r < 2; ++r)
     for (int col = 0; col < 3; ++col)
       p.U[3 * r + col] = p.JW[3 * r] * p.M[col] + p.JW[3 * r + 1] * p.M[3 + col] + p.JW[3 * r + 2] * p.M[6 + col];
-  const S* U = p.U;
+  const T* U = p.U;
   p.a = U[0] * U[0] + U[1] * U[1] + U[2] * U[2];
   p.b = U[0] * U[3] + U[1] * U[4] + U[2] * U[5];
   p.c = U[3] * U[3] + U[4] * U[4] + U[5] * U[5];
-  const S m01 = U[0] * U[4] - U[1] * U[3];
-  const S m02 = U[0] * U[5] - U[2] * U[3];
-  const S m12 = U[1] * U[5] - U[2] * U[4];
+  const T m01 = U[0] * U[4] - U[1] * U[3];
+  const T m02 = U[0] * U[5] - U[2] * U[3];
+  const T m12 = U[1] * U[5] - U[2] * U[4];
   const S lp = static_cast<S>(kLowPass);
   p.det = m01 * m01 + m02 * m02 + m12 * m12 + lp * (p.a + p.c) + static_cast<S>(kLowPass * kLowPass);
-  p.ok = p.in_range && p.det > 0 && std::isfinite(p.det);
-  p.det_s = p.ok ? p.det : S(1);
-  p.a_s = p.ok ? p.a + lp : S(1);
-  p.b_s = p.ok ? p.b : S(0);
-  p.c_s = p.ok ? p.c + lp : S(1);
+  p.ok = L::both(L::both(p.in_range, p.det > L::splat(S(0))), L::finite(p.det));
+  p.det_s = L::sel(p.ok, p.det, L::splat(S(1)));
+  p.a_s = L::sel(p.ok, p.a + lp, L::splat(S(1)));
+  p.b_s = L::sel(p.ok, p.b, L::splat(S(0)));
+  p.c_s = L::sel(p.ok, p.c + lp, L::splat(S(1)));
 }
 
 template <typename S>
@@ -255,46 +287,233 @@ void check_all(const at::Tensor& means, const at::Tensor& quats, const at::Tenso
               " coefficients per channel, degree ", sh_degree, " needs ", (sh_degree + 1) * (sh_degree + 1));
 }
 
+// Whether float32 projections take eight Gaussians at a time (1, the default) or one (0: the one-lane code the
+// eight-lane code must equal bit for bit; set by tests through project_lane_width).
+std::atomic<int> g_eight_lanes{1};
+
+// Projection and colour of Gaussians g .. g + L::kWidth - 1.
+template <typename L>
+GSGS_LANE_INLINE void forward_lanes(const Cam<typename L::S>& k, const typename L::S* mp, const typename L::S* qp,
+                                    const typename L::S* sp, const typename L::S* hp, int64_t n_coeffs,
+                                    int64_t sh_degree, typename L::S* o_m, typename L::S* o_k, typename L::S* o_d,
+                                    typename L::S* o_c, int32_t* o_r, int64_t g) {
+  using S = typename L::S;
+  using T = typename L::T;
+  Proj<L> p;
+  project_one<L>(k, mp, qp, sp, g, p);
+  const T *m = p.m, *q = p.q, *s = p.s;
+  L::store(o_k, 3, g, 0, p.c_s / p.det_s);
+  L::store(o_k, 3, g, 1, -p.b_s / p.det_s);
+  L::store(o_k, 3, g, 2, p.a_s / p.det_s);
+  const T mx = k.fx * p.x / p.z + k.cx;
+  const T my = k.fy * p.y / p.z + k.cy;
+  L::store(o_m, 2, g, 0, mx);
+  L::store(o_m, 2, g, 1, my);
+  L::store(o_d, 1, g, 0, p.z);
+  // Radius from the largest eigenvalue, in double (no gradient), one Gaussian at a time.
+  for (int i = 0; i < L::kWidth; ++i) {
+    const double a64 = L::lane(p.a_s, i), c64 = L::lane(p.c_s, i), det64 = L::lane(p.det_s, i);
+    const double mid = 0.5 * (a64 + c64);
+    const double lam = mid + std::sqrt(std::max(mid * mid - det64, 0.0));
+    const double radius = std::ceil(3.0 * std::sqrt(std::max(lam, 0.0)));
+    const double mx64 = L::lane(mx, i), my64 = L::lane(my, i);
+    const bool on_screen = mx64 + radius > 0 && mx64 - radius < k.width && my64 + radius > 0 &&
+                           my64 - radius < k.height;
+    const bool visible = L::lane(p.ok, i) && on_screen && std::isfinite(radius);
+    o_r[g + i] = visible ? static_cast<int32_t>(std::min(std::max(radius, 1.0), kMaxRadius)) : 0;
+  }
+
+  // Colour along the view direction.
+  const T dir[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
+  const T inv = rsqrt_clamped<L>(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2], static_cast<S>(kDirEps));
+  T basis[16];
+  const int nb = sh_basis<L>(static_cast<int>(sh_degree), dir[0] * inv, dir[1] * inv, dir[2] * inv, basis);
+  for (int ch = 0; ch < 3; ++ch) {
+    T v = L::splat(S(0));
+    for (int b = 0; b < nb; ++b) v += basis[b] * L::load(hp, n_coeffs * 3, g, 3 * b + ch);
+    v += S(0.5);
+    L::store(o_c, 3, g, ch, L::sel(v >= L::splat(S(0)), v, L::splat(S(0))));
+  }
+}
+
 // Projection and colour of Gaussians [g0, g1) (one thread's share).
 template <typename S>
 GSGS_HOT void forward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const S* hp, int64_t n_coeffs,
                             int64_t sh_degree, S* o_m, S* o_k, S* o_d, S* o_c, int32_t* o_r, int64_t g0, int64_t g1) {
-  Proj<S> p;
-  for (int64_t g = g0; g < g1; ++g) {
-    const S* m = mp + 3 * g;
-    project_one(k, m, qp + 4 * g, sp + 3 * g, p);
-    o_k[3 * g] = p.c_s / p.det_s;
-    o_k[3 * g + 1] = -p.b_s / p.det_s;
-    o_k[3 * g + 2] = p.a_s / p.det_s;
-    const S mx = k.fx * p.x / p.z + k.cx;
-    const S my = k.fy * p.y / p.z + k.cy;
-    o_m[2 * g] = mx;
-    o_m[2 * g + 1] = my;
-    o_d[g] = p.z;
-    // Radius from the largest eigenvalue, in double (no gradient).
-    const double a64 = p.a_s, c64 = p.c_s, det64 = p.det_s;
-    const double mid = 0.5 * (a64 + c64);
-    const double lam = mid + std::sqrt(std::max(mid * mid - det64, 0.0));
-    const double radius = std::ceil(3.0 * std::sqrt(std::max(lam, 0.0)));
-    const double mx64 = mx, my64 = my;
-    const bool on_screen = mx64 + radius > 0 && mx64 - radius < k.width && my64 + radius > 0 &&
-                           my64 - radius < k.height;
-    const bool visible = p.ok && on_screen && std::isfinite(radius);
-    o_r[g] = visible ? static_cast<int32_t>(std::min(std::max(radius, 1.0), kMaxRadius)) : 0;
+  int64_t g = g0;
+  if constexpr (std::is_same_v<S, float>) {
+    if (g_eight_lanes.load(std::memory_order_relaxed))
+      for (; g + Eight::kWidth <= g1; g += Eight::kWidth)
+        forward_lanes<Eight>(k, mp, qp, sp, hp, n_coeffs, sh_degree, o_m, o_k, o_d, o_c, o_r, g);
+  }
+  for (; g < g1; ++g) forward_lanes<One<S>>(k, mp, qp, sp, hp, n_coeffs, sh_degree, o_m, o_k, o_d, o_c, o_r, g);
+}
 
-    // Colour along the view direction.
-    S dir[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
-    const S inv = rsqrt_clamped(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2], static_cast<S>(kDirEps));
-    S basis[16];
-    const int nb = sh_basis(static_cast<int>(sh_degree), dir[0] * inv, dir[1] * inv, dir[2] * inv, basis);
-    const S* coeffs = hp + g * n_coeffs * 3;
+// Gradients of Gaussians g .. g + L::kWidth - 1. A culled Gaussian (radius 0: the rasteriser ignored it) gets
+// exactly zero; a branch of the one-lane code not taken by a lane is computed and selected away.
+template <typename L>
+GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename L::S* mp, const typename L::S* qp,
+                                     const typename L::S* sp, const typename L::S* hp, int64_t n_coeffs, int deg,
+                                     const int32_t* rp, const typename L::S* gm, const typename L::S* gk,
+                                     const typename L::S* gd, const typename L::S* gc, typename L::S* dm_p,
+                                     typename L::S* dq_p, typename L::S* ds_p, typename L::S* dh_p, int64_t g) {
+  using S = typename L::S;
+  using T = typename L::T;
+  using Mask = typename L::M;
+  const T zero = L::splat(S(0));
+  Mask drawn;
+  if constexpr (L::kWidth == 1) {
+    drawn = rp[g] > 0;
+  } else {
+    for (int i = 0; i < L::kWidth; ++i) drawn[i] = rp[g + i] > 0 ? -1 : 0;
+  }
+  bool any_drawn = false;
+  for (int i = 0; i < L::kWidth; ++i) any_drawn = any_drawn || L::lane(drawn, i);
+  if (!any_drawn) {  // nothing reaches these Gaussians' parameters
+    for (int i = 0; i < L::kWidth; ++i) {
+      std::fill(dh_p + (g + i) * n_coeffs * 3, dh_p + (g + i + 1) * n_coeffs * 3, S(0));
+      std::fill(dm_p + 3 * (g + i), dm_p + 3 * (g + i + 1), S(0));
+      std::fill(dq_p + 4 * (g + i), dq_p + 4 * (g + i + 1), S(0));
+      std::fill(ds_p + 3 * (g + i), ds_p + 3 * (g + i + 1), S(0));
+    }
+    return;
+  }
+  Proj<L> p;
+  project_one<L>(k, mp, qp, sp, g, p);
+  const T *m = p.m, *q = p.q, *s = p.s;
+  const T x = p.x, y = p.y, z = p.z;
+
+  // --- colour: SH + 0.5, clamp_min(0) --------------------------------------------------
+  T dmean[3] = {zero, zero, zero};
+  {
+    const T v[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
+    const T vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    const T inv = rsqrt_clamped<L>(vv, static_cast<S>(kDirEps));
+    const T d[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
+    T basis[16];
+    const int nb = sh_basis<L>(deg, d[0], d[1], d[2], basis);
+    T coeffs[16][3];
+    for (int b = 0; b < nb; ++b)
+      for (int ch = 0; ch < 3; ++ch) coeffs[b][ch] = L::load(hp, n_coeffs * 3, g, 3 * b + ch);
+    T dcol[3];
+    Mask any = L::none();
     for (int ch = 0; ch < 3; ++ch) {
-      S v = 0;
-      for (int b = 0; b < nb; ++b) v += basis[b] * coeffs[3 * b + ch];
-      v += S(0.5);
-      o_c[3 * g + ch] = v >= 0 ? v : S(0);
+      T val = zero;
+      for (int b = 0; b < nb; ++b) val += basis[b] * coeffs[b][ch];
+      val += S(0.5);
+      dcol[ch] = L::sel(val >= zero, L::load(gc, 3, g, ch), zero);
+      any = L::either(any, dcol[ch] != zero);
+    }
+    for (int b = 0; b < n_coeffs; ++b)
+      for (int ch = 0; ch < 3; ++ch)
+        L::store(dh_p, n_coeffs * 3, g, 3 * b + ch, b < nb ? L::sel(drawn, basis[b] * dcol[ch], zero) : zero);
+    if (deg > 0) {
+      T db[16][3];
+      sh_basis_grad<L>(deg, d[0], d[1], d[2], db);
+      T ddir[3] = {zero, zero, zero};
+      for (int b = 1; b < nb; ++b) {
+        const T w = coeffs[b][0] * dcol[0] + coeffs[b][1] * dcol[1] + coeffs[b][2] * dcol[2];
+        for (int i = 0; i < 3; ++i) ddir[i] += w * db[b][i];
+      }
+      // d = v * rsqrt(max(|v|^2, eps)): dv = inv ddir - inv^3 (ddir . v) v where |v|^2 >= eps
+      const T dot = ddir[0] * v[0] + ddir[1] * v[1] + ddir[2] * v[2];
+      const T k3 = L::sel(vv >= L::splat(static_cast<S>(kDirEps)), inv * inv * inv * dot, zero);
+      for (int i = 0; i < 3; ++i) dmean[i] = L::sel(any, dmean[i] + (inv * ddir[i] - k3 * v[i]), dmean[i]);
     }
   }
+
+  // --- camera-space point: means2d and depth ----------------------------------------------
+  T dx = zero, dy = zero, dz = L::load(gd, 1, g, 0);
+  {
+    const T gmx = L::load(gm, 2, g, 0), gmy = L::load(gm, 2, g, 1);
+    dx += gmx * k.fx / z;
+    dy += gmy * k.fy / z;
+    dz -= (gmx * k.fx * x + gmy * k.fy * y) / (z * z);
+  }
+
+  // --- conic (c, -b, a) / det and the dilated determinant (where the projection is ok) --------
+  T dU[6] = {zero, zero, zero, zero, zero, zero};
+  {
+    const T* U = p.U;
+    const T k0 = L::load(gk, 3, g, 0), k1 = L::load(gk, 3, g, 1), k2 = L::load(gk, 3, g, 2);
+    const T inv_det = S(1) / p.det;
+    const T ddet = -(k0 * p.c_s - k1 * p.b_s + k2 * p.a_s) * inv_det * inv_det;
+    const S lp = static_cast<S>(kLowPass);
+    const T da = k2 * inv_det + lp * ddet;
+    const T dc = k0 * inv_det + lp * ddet;
+    const T db = -k1 * inv_det;
+    const T m01 = U[0] * U[4] - U[1] * U[3];
+    const T m02 = U[0] * U[5] - U[2] * U[3];
+    const T m12 = U[1] * U[5] - U[2] * U[4];
+    const T d01 = S(2) * m01 * ddet, d02 = S(2) * m02 * ddet, d12 = S(2) * m12 * ddet;
+    T e[6] = {zero, zero, zero, zero, zero, zero};
+    for (int i = 0; i < 3; ++i) {
+      e[i] += S(2) * da * U[i] + db * U[3 + i];
+      e[3 + i] += S(2) * dc * U[3 + i] + db * U[i];
+    }
+    e[0] += d01 * U[4] + d02 * U[5];
+    e[4] += d01 * U[0] - d12 * U[2];
+    e[1] += -d01 * U[3] + d12 * U[5];
+    e[3] += -d01 * U[1] - d02 * U[2];
+    e[5] += d02 * U[0] + d12 * U[1];
+    e[2] += -d02 * U[3] - d12 * U[4];
+    for (int i = 0; i < 6; ++i) dU[i] = L::sel(p.ok, e[i], zero);
+  }
+  // U = JW M: dJW = dU M^T, dM = JW^T dU
+  T dJW[6], dM[9];
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 3; ++c)
+      dJW[3 * r + c] = dU[3 * r] * p.M[3 * c] + dU[3 * r + 1] * p.M[3 * c + 1] + dU[3 * r + 2] * p.M[3 * c + 2];
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) dM[3 * r + c] = p.JW[r] * dU[c] + p.JW[3 + r] * dU[3 + c];
+  // JW = J W: dJ = dJW W^T (only J00, J02, J11, J12 depend on the point)
+  const S* R = k.R;
+  T dJ[6];
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 3; ++c)
+      dJ[3 * r + c] = dJW[3 * r] * R[3 * c] + dJW[3 * r + 1] * R[3 * c + 1] + dJW[3 * r + 2] * R[3 * c + 2];
+  {
+    const T cxz = clamp_x<L>(k, p.txtz);
+    const T cyz = clamp_y<L>(k, p.tytz);
+    const T z2 = z * z;
+    dz += -dJ[0] * k.fx / z2 + dJ[2] * k.fx * cxz / z2 - dJ[4] * k.fy / z2 + dJ[5] * k.fy * cyz / z2;
+    const T dtx = -dJ[2] * k.fx / z;
+    const T dty = -dJ[5] * k.fy / z;
+    const Mask inside_x = L::both(p.txtz >= L::splat(-k.lim_left), p.txtz <= L::splat(k.lim_right));
+    dx = L::sel(inside_x, dx + dtx / z, dx);
+    dz = L::sel(inside_x, dz - dtx * x / z2, dz);
+    const Mask inside_y = L::both(p.tytz >= L::splat(-k.lim_top), p.tytz <= L::splat(k.lim_bottom));
+    dy = L::sel(inside_y, dy + dty / z, dy);
+    dz = L::sel(inside_y, dz - dty * y / z2, dz);
+  }
+  // p_cam = R m + t
+  for (int i = 0; i < 3; ++i)
+    dmean[i] = L::sel(p.in_range, dmean[i] + (R[i] * dx + R[3 + i] * dy + R[6 + i] * dz), dmean[i]);
+  for (int i = 0; i < 3; ++i) L::store(dm_p, 3, g, i, L::sel(drawn, dmean[i], zero));
+
+  // M = Rq diag(s)
+  T dR[9];
+  for (int c = 0; c < 3; ++c) {
+    const T ds = dM[c] * p.Rq[c] + dM[3 + c] * p.Rq[3 + c] + dM[6 + c] * p.Rq[6 + c];
+    L::store(ds_p, 3, g, c, L::sel(drawn, ds, zero));
+    for (int r = 0; r < 3; ++r) dR[3 * r + c] = dM[3 * r + c] * s[c];
+  }
+  // Rq(w, x, y, z) of the normalised quaternion
+  const T w = p.qn[0], qx = p.qn[1], qy = p.qn[2], qz = p.qn[3];
+  T dqn[4];
+  dqn[0] = S(2) * (-qz * dR[1] + qy * dR[2] + qz * dR[3] - qx * dR[5] - qy * dR[6] + qx * dR[7]);
+  dqn[1] = S(2) * (qy * dR[1] + qz * dR[2] + qy * dR[3] - S(2) * qx * dR[4] - w * dR[5] + qz * dR[6] + w * dR[7] -
+                   S(2) * qx * dR[8]);
+  dqn[2] = S(2) * (S(-2) * qy * dR[0] + qx * dR[1] + w * dR[2] + qx * dR[3] + qz * dR[5] - w * dR[6] + qz * dR[7] -
+                   S(2) * qy * dR[8]);
+  dqn[3] = S(2) * (S(-2) * qz * dR[0] - w * dR[1] + qx * dR[2] + w * dR[3] - S(2) * qz * dR[4] + qy * dR[5] +
+                   qx * dR[6] + qy * dR[7]);
+  // qn = q rsqrt(max(|q|^2, eps))
+  const T qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+  const T inv = p.q_inv;
+  const T dot = dqn[0] * q[0] + dqn[1] * q[1] + dqn[2] * q[2] + dqn[3] * q[3];
+  const T k3 = L::sel(qq >= L::splat(static_cast<S>(kQuatEps)), inv * inv * inv * dot, zero);
+  for (int i = 0; i < 4; ++i) L::store(dq_p, 4, g, i, L::sel(drawn, inv * dqn[i] - k3 * q[i], zero));
 }
 
 // Gradients of Gaussians [g0, g1) (one thread's share).
@@ -302,155 +521,14 @@ template <typename S>
 GSGS_HOT void backward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const S* hp, int64_t n_coeffs,
                              int deg, const int32_t* rp, const S* gm, const S* gk, const S* gd, const S* gc, S* dm_p,
                              S* dq_p, S* ds_p, S* dh_p, int64_t g0, int64_t g1) {
-  Proj<S> p;
-  for (int64_t g = g0; g < g1; ++g) {
-    S* dm = dm_p + 3 * g;
-    S* dq = dq_p + 4 * g;
-    S* ds = ds_p + 3 * g;
-    S* dh = dh_p + g * n_coeffs * 3;
-    std::fill(dh, dh + n_coeffs * 3, S(0));
-    if (rp[g] <= 0) {  // culled: the rasteriser ignores it, so nothing reaches its parameters
-      std::fill(dm, dm + 3, S(0));
-      std::fill(dq, dq + 4, S(0));
-      std::fill(ds, ds + 3, S(0));
-      continue;
-    }
-    const S* m = mp + 3 * g;
-    const S* q = qp + 4 * g;
-    const S* s = sp + 3 * g;
-    project_one(k, m, q, s, p);
-    const S x = p.x, y = p.y, z = p.z;
-
-    // --- colour: SH + 0.5, clamp_min(0) --------------------------------------------------
-    S dmean[3] = {0, 0, 0};
-    {
-      const S v[3] = {m[0] - k.centre[0], m[1] - k.centre[1], m[2] - k.centre[2]};
-      const S vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-      const S inv = rsqrt_clamped(vv, static_cast<S>(kDirEps));
-      const S d[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
-      S basis[16];
-      const int nb = sh_basis(deg, d[0], d[1], d[2], basis);
-      const S* coeffs = hp + g * n_coeffs * 3;
-      S dcol[3];
-      bool any = false;
-      for (int ch = 0; ch < 3; ++ch) {
-        S val = 0;
-        for (int b = 0; b < nb; ++b) val += basis[b] * coeffs[3 * b + ch];
-        val += S(0.5);
-        dcol[ch] = val >= 0 ? gc[3 * g + ch] : S(0);
-        any = any || dcol[ch] != 0;
-      }
-      for (int b = 0; b < nb; ++b)
-        for (int ch = 0; ch < 3; ++ch) dh[3 * b + ch] = basis[b] * dcol[ch];
-      if (any && deg > 0) {
-        S db[16][3];
-        sh_basis_grad(deg, d[0], d[1], d[2], db);
-        S ddir[3] = {0, 0, 0};
-        for (int b = 1; b < nb; ++b) {
-          const S w = coeffs[3 * b] * dcol[0] + coeffs[3 * b + 1] * dcol[1] + coeffs[3 * b + 2] * dcol[2];
-          for (int i = 0; i < 3; ++i) ddir[i] += w * db[b][i];
-        }
-        // d = v * rsqrt(max(|v|^2, eps)): dv = inv ddir - inv^3 (ddir . v) v where |v|^2 >= eps
-        const S dot = ddir[0] * v[0] + ddir[1] * v[1] + ddir[2] * v[2];
-        const S k3 = vv >= static_cast<S>(kDirEps) ? inv * inv * inv * dot : S(0);
-        for (int i = 0; i < 3; ++i) dmean[i] += inv * ddir[i] - k3 * v[i];
-      }
-    }
-
-    // --- camera-space point: means2d and depth ----------------------------------------------
-    S dx = 0, dy = 0, dz = gd[g];
-    {
-      const S gmx = gm[2 * g], gmy = gm[2 * g + 1];
-      dx += gmx * k.fx / z;
-      dy += gmy * k.fy / z;
-      dz -= (gmx * k.fx * x + gmy * k.fy * y) / (z * z);
-    }
-
-    // --- conic (c, -b, a) / det and the dilated determinant ------------------------------------
-    S dU[6] = {0, 0, 0, 0, 0, 0};
-    S dJW[6];
-    if (p.ok) {
-      const S* U = p.U;
-      const S k0 = gk[3 * g], k1 = gk[3 * g + 1], k2 = gk[3 * g + 2];
-      const S inv_det = S(1) / p.det;
-      const S ddet = -(k0 * p.c_s - k1 * p.b_s + k2 * p.a_s) * inv_det * inv_det;
-      const S lp = static_cast<S>(kLowPass);
-      const S da = k2 * inv_det + lp * ddet;
-      const S dc = k0 * inv_det + lp * ddet;
-      const S db = -k1 * inv_det;
-      const S m01 = U[0] * U[4] - U[1] * U[3];
-      const S m02 = U[0] * U[5] - U[2] * U[3];
-      const S m12 = U[1] * U[5] - U[2] * U[4];
-      const S d01 = 2 * m01 * ddet, d02 = 2 * m02 * ddet, d12 = 2 * m12 * ddet;
-      for (int i = 0; i < 3; ++i) {
-        dU[i] += 2 * da * U[i] + db * U[3 + i];
-        dU[3 + i] += 2 * dc * U[3 + i] + db * U[i];
-      }
-      dU[0] += d01 * U[4] + d02 * U[5];
-      dU[4] += d01 * U[0] - d12 * U[2];
-      dU[1] += -d01 * U[3] + d12 * U[5];
-      dU[3] += -d01 * U[1] - d02 * U[2];
-      dU[5] += d02 * U[0] + d12 * U[1];
-      dU[2] += -d02 * U[3] - d12 * U[4];
-    }
-    // U = JW M: dJW = dU M^T, dM = JW^T dU
-    S dM[9];
-    for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 3; ++c)
-        dJW[3 * r + c] = dU[3 * r] * p.M[3 * c] + dU[3 * r + 1] * p.M[3 * c + 1] + dU[3 * r + 2] * p.M[3 * c + 2];
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) dM[3 * r + c] = p.JW[r] * dU[c] + p.JW[3 + r] * dU[3 + c];
-    // JW = J W: dJ = dJW W^T (only J00, J02, J11, J12 depend on the point)
-    const S* R = k.R;
-    S dJ[6];
-    for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 3; ++c)
-        dJ[3 * r + c] = dJW[3 * r] * R[3 * c] + dJW[3 * r + 1] * R[3 * c + 1] + dJW[3 * r + 2] * R[3 * c + 2];
-    {
-      const S cxz = std::min(std::max(p.txtz, -k.lim_left), k.lim_right);
-      const S cyz = std::min(std::max(p.tytz, -k.lim_top), k.lim_bottom);
-      const S z2 = z * z;
-      dz += -dJ[0] * k.fx / z2 + dJ[2] * k.fx * cxz / z2 - dJ[4] * k.fy / z2 + dJ[5] * k.fy * cyz / z2;
-      const S dtx = -dJ[2] * k.fx / z;
-      const S dty = -dJ[5] * k.fy / z;
-      if (p.txtz >= -k.lim_left && p.txtz <= k.lim_right) {
-        dx += dtx / z;
-        dz -= dtx * x / z2;
-      }
-      if (p.tytz >= -k.lim_top && p.tytz <= k.lim_bottom) {
-        dy += dty / z;
-        dz -= dty * y / z2;
-      }
-    }
-    // p_cam = R m + t
-    if (p.in_range) {
-      for (int i = 0; i < 3; ++i) dmean[i] += R[i] * dx + R[3 + i] * dy + R[6 + i] * dz;
-    }
-    for (int i = 0; i < 3; ++i) dm[i] = dmean[i];
-
-    // M = Rq diag(s)
-    S dR[9];
-    for (int c = 0; c < 3; ++c) {
-      ds[c] = dM[c] * p.Rq[c] + dM[3 + c] * p.Rq[3 + c] + dM[6 + c] * p.Rq[6 + c];
-      for (int r = 0; r < 3; ++r) dR[3 * r + c] = dM[3 * r + c] * s[c];
-    }
-    // Rq(w, x, y, z) of the normalised quaternion
-    const S w = p.qn[0], qx = p.qn[1], qy = p.qn[2], qz = p.qn[3];
-    S dqn[4];
-    dqn[0] = 2 * (-qz * dR[1] + qy * dR[2] + qz * dR[3] - qx * dR[5] - qy * dR[6] + qx * dR[7]);
-    dqn[1] = 2 * (qy * dR[1] + qz * dR[2] + qy * dR[3] - 2 * qx * dR[4] - w * dR[5] + qz * dR[6] + w * dR[7] -
-                  2 * qx * dR[8]);
-    dqn[2] = 2 * (-2 * qy * dR[0] + qx * dR[1] + w * dR[2] + qx * dR[3] + qz * dR[5] - w * dR[6] + qz * dR[7] -
-                  2 * qy * dR[8]);
-    dqn[3] = 2 * (-2 * qz * dR[0] - w * dR[1] + qx * dR[2] + w * dR[3] - 2 * qz * dR[4] + qy * dR[5] +
-                  qx * dR[6] + qy * dR[7]);
-    // qn = q rsqrt(max(|q|^2, eps))
-    const S qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-    const S inv = p.q_inv;
-    const S dot = dqn[0] * q[0] + dqn[1] * q[1] + dqn[2] * q[2] + dqn[3] * q[3];
-    const S k3 = qq >= static_cast<S>(kQuatEps) ? inv * inv * inv * dot : S(0);
-    for (int i = 0; i < 4; ++i) dq[i] = inv * dqn[i] - k3 * q[i];
+  int64_t g = g0;
+  if constexpr (std::is_same_v<S, float>) {
+    if (g_eight_lanes.load(std::memory_order_relaxed))
+      for (; g + Eight::kWidth <= g1; g += Eight::kWidth)
+        backward_lanes<Eight>(k, mp, qp, sp, hp, n_coeffs, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh_p, g);
   }
+  for (; g < g1; ++g)
+    backward_lanes<One<S>>(k, mp, qp, sp, hp, n_coeffs, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh_p, g);
 }
 
 using ProjectResult = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
@@ -553,9 +631,17 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& quats, 
                               radii, g_means2d, g_conics, g_depths, g_colors);
 }
 
+// Sets how many float32 Gaussians the projection takes at a time (8, or 1 for the one-lane code); returns the
+// previous width. For tests: both widths give the same bits.
+int64_t project_lane_width(int64_t width) {
+  TORCH_CHECK(width == 1 || width == 8, "project_lane_width: 1 or 8, got ", width);
+  return g_eight_lanes.exchange(width == 8 ? 1 : 0) ? 8 : 1;
+}
+
 }  // namespace
 
 TORCH_LIBRARY_FRAGMENT(gsgs_raster_cpu, m) {
+  m.def("project_lane_width(int width) -> int", &project_lane_width);
   m.def(
       "project_forward(Tensor means, Tensor quats, Tensor scales, Tensor sh, Tensor cam, float fx, float fy, "
       "float cx, float cy, int width, int height, float near, float far, int sh_degree) -> "

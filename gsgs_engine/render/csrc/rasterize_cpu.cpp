@@ -406,13 +406,22 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   const int n_tiles = tiles_x * tiles_y;
 
   Binning b;
+  // Every Gaussian's 3-sigma tile rectangle (x1 < x0: none) and depth key, on all threads; then the ones with
+  // tiles, in index order, sorted by depth.
+  TileRect* const rect_of = reusable_buffer<TileRect, 1>(n);
+  at::parallel_for(0, n, 4096, [&](int64_t g0, int64_t g1) {
+    for (int64_t g = g0; g < g1; ++g) {
+      if (!tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect_of[g])) {
+        rect_of[g] = TileRect{0, -1, 0, -1};
+      }
+    }
+  });
   std::vector<uint32_t> keys;
   std::vector<int32_t> ids;
   keys.reserve(n);
   ids.reserve(n);
   for (int64_t g = 0; g < n; ++g) {
-    TileRect rect;
-    if (tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect)) {
+    if (rect_of[g].x1 >= rect_of[g].x0) {
       keys.push_back(depth_key(dp[g]));
       ids.push_back(static_cast<int32_t>(g));
     }
@@ -432,7 +441,7 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
                  col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
       alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
       sp.power_floor = power_floor(sp.opacity);
-      tile_rect(sp.mx, sp.my, rad[g], tiles_x, tiles_y, &rects[s]);
+      rects[s] = rect_of[g];
       clip_to_alpha_extent(sp, &rects[s]);
     }
   });
