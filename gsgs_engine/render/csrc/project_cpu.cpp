@@ -328,9 +328,11 @@ GSGS_LANE_INLINE void forward_lanes(const Cam<typename L::S>& k, const typename 
   const T inv = rsqrt_clamped<L>(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2], static_cast<S>(kDirEps));
   T basis[16];
   const int nb = sh_basis<L>(static_cast<int>(sh_degree), dir[0] * inv, dir[1] * inv, dir[2] * inv, basis);
+  T coeffs[16 * 3 + 8];  // the used coefficients, [b][ch] (room for a last whole run of 8 fields)
+  L::load_fields(hp, n_coeffs * 3, g, 3 * nb, coeffs);
   for (int ch = 0; ch < 3; ++ch) {
     T v = L::splat(S(0));
-    for (int b = 0; b < nb; ++b) v += basis[b] * L::load(hp, n_coeffs * 3, g, 3 * b + ch);
+    for (int b = 0; b < nb; ++b) v += basis[b] * coeffs[3 * b + ch];
     v += S(0.5);
     L::store(o_c, 3, g, ch, L::sel(v >= L::splat(S(0)), v, L::splat(S(0))));
   }
@@ -392,27 +394,26 @@ GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename
     const T d[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
     T basis[16];
     const int nb = sh_basis<L>(deg, d[0], d[1], d[2], basis);
-    T coeffs[16][3];
-    for (int b = 0; b < nb; ++b)
-      for (int ch = 0; ch < 3; ++ch) coeffs[b][ch] = L::load(hp, n_coeffs * 3, g, 3 * b + ch);
+    T coeffs[16 * 3 + 8];  // [b][ch], as in the forward
+    L::load_fields(hp, n_coeffs * 3, g, 3 * nb, coeffs);
     T dcol[3];
     Mask any = L::none();
     for (int ch = 0; ch < 3; ++ch) {
       T val = zero;
-      for (int b = 0; b < nb; ++b) val += basis[b] * coeffs[b][ch];
+      for (int b = 0; b < nb; ++b) val += basis[b] * coeffs[3 * b + ch];
       val += S(0.5);
       dcol[ch] = L::sel(val >= zero, L::load(gc, 3, g, ch), zero);
       any = L::either(any, dcol[ch] != zero);
     }
-    for (int b = 0; b < n_coeffs; ++b)
-      for (int ch = 0; ch < 3; ++ch)
-        L::store(dh_p, n_coeffs * 3, g, 3 * b + ch, b < nb ? L::sel(drawn, basis[b] * dcol[ch], zero) : zero);
+    L::store_fields(dh_p, n_coeffs * 3, g, [&](int64_t f) {
+      return f < 3 * nb ? L::sel(drawn, basis[f / 3] * dcol[f % 3], zero) : zero;
+    });
     if (deg > 0) {
       T db[16][3];
       sh_basis_grad<L>(deg, d[0], d[1], d[2], db);
       T ddir[3] = {zero, zero, zero};
       for (int b = 1; b < nb; ++b) {
-        const T w = coeffs[b][0] * dcol[0] + coeffs[b][1] * dcol[1] + coeffs[b][2] * dcol[2];
+        const T w = coeffs[3 * b] * dcol[0] + coeffs[3 * b + 1] * dcol[1] + coeffs[3 * b + 2] * dcol[2];
         for (int i = 0; i < 3; ++i) ddir[i] += w * db[b][i];
       }
       // d = v * rsqrt(max(|v|^2, eps)): dv = inv ddir - inv^3 (ddir . v) v where |v|^2 >= eps

@@ -46,6 +46,8 @@ constexpr int kTilePixels = kTile * kTile;
 constexpr float kMinAlpha = 1.0f / 255.0f;
 constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 1e-4f;
+const double kLogMinAlpha = std::log(static_cast<double>(kMinAlpha));
+const double kLog255 = std::log(255.0);
 constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
 
 #define GSGS_INLINE inline __attribute__((always_inline))
@@ -134,9 +136,8 @@ GSGS_INLINE vf gaussian_power(float A, float B, float C, vf dx, float dy) {
 // A millesimal margin in the exponent covers the rounding of exp_nonpositive (~1 ulp), so an 8-pixel step whose
 // powers all lie below it changes nothing in either pass and is skipped before its exp is evaluated: results are
 // bit-identical to evaluating it. (Opacities below 1/255 never reach a tile: their alpha extent is empty.)
-float power_floor(float opacity) {
-  if (!(opacity >= kMinAlpha)) return std::numeric_limits<float>::infinity();  // never drawn (NaN too)
-  return static_cast<float>(std::log(static_cast<double>(kMinAlpha) / static_cast<double>(opacity))) - 1e-3f;
+float power_floor(double log_opacity) {
+  return static_cast<float>(kLogMinAlpha - log_opacity) - 1e-3f;
 }
 
 // Row (or column) index range [lo, hi] inside a tile starting at pixel `start` whose centres lie
@@ -152,12 +153,7 @@ GSGS_INLINE void lane_range(float centre, float ext, int start, int count, int* 
 // Half-extents of the ellipse o * exp(-q/2) >= 1/255, q = d^T conic d, i.e. q <= 2 ln(255 o); its
 // x half-width is sqrt(k * Sigma_xx) with Sigma = conic^-1. Pixels outside cannot pass the alpha
 // test, so restricting the loops to it changes no result; the margin covers float rounding.
-void alpha_extent(float A, float B, float C, float opacity, float* ext_x, float* ext_y) {
-  // alpha = min(0.99, o * G) with G <= 1, so o < 1/255 can never pass (also rejects NaN).
-  if (!(opacity >= kMinAlpha)) {
-    *ext_x = *ext_y = -1.0f;
-    return;
-  }
+void alpha_extent(float A, float B, float C, double log_opacity, float* ext_x, float* ext_y) {
   const double a = A, b = B, c = C;
   const double det = a * c - b * b;
   if (!(a > 0.0 && c > 0.0 && det > 0.0 && std::isfinite(det))) {
@@ -165,9 +161,22 @@ void alpha_extent(float A, float B, float C, float opacity, float* ext_x, float*
     *ext_x = *ext_y = std::numeric_limits<float>::infinity();
     return;
   }
-  const double k = std::max(0.0, 2.0 * std::log(255.0 * static_cast<double>(opacity)));
+  const double k = std::max(0.0, 2.0 * (kLog255 + log_opacity));
   *ext_x = static_cast<float>(std::sqrt(k * c / det) * 1.001 + 1.0);
   *ext_y = static_cast<float>(std::sqrt(k * a / det) * 1.001 + 1.0);
+}
+
+// A splat's alpha >= 1/255 bounds (alpha_extent, power_floor) from one logarithm of its opacity. alpha =
+// min(0.99, o G) with G <= 1, so o < 1/255 can never pass (NaN neither): an empty extent, an infinite floor.
+void alpha_bounds(Splat& sp) {
+  if (!(sp.opacity >= kMinAlpha)) {
+    sp.ext_x = sp.ext_y = -1.0f;
+    sp.power_floor = std::numeric_limits<float>::infinity();
+    return;
+  }
+  const double log_opacity = std::log(static_cast<double>(sp.opacity));
+  alpha_extent(sp.A, sp.B, sp.C, log_opacity, &sp.ext_x, &sp.ext_y);
+  sp.power_floor = power_floor(log_opacity);
 }
 
 // Depth -> unsigned key with the same order as the float (negative values flipped); -0 == +0 and
@@ -439,8 +448,7 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
       Splat& sp = splats[s];
       sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
                  col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
-      alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
-      sp.power_floor = power_floor(sp.opacity);
+      alpha_bounds(sp);
       rects[s] = rect_of[g];
       clip_to_alpha_extent(sp, &rects[s]);
     }
@@ -599,8 +607,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
       Splat& sp = splats[s];
       sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
                  col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
-      alpha_extent(sp.A, sp.B, sp.C, sp.opacity, &sp.ext_x, &sp.ext_y);
-      sp.power_floor = power_floor(sp.opacity);
+      alpha_bounds(sp);
     }
   });
 
