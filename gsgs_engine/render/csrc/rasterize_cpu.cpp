@@ -415,22 +415,32 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   const int n_tiles = tiles_x * tiles_y;
 
   Binning b;
-  // Every Gaussian's 3-sigma tile rectangle (x1 < x0: none) and depth key, on all threads; then the ones with
-  // tiles, in index order, sorted by depth.
+  // Every Gaussian's 3-sigma tile rectangle (x1 < x0: none) and, where it has one, its splat and the rectangle
+  // clipped to its alpha box: on all threads, in index order (the inputs read in sequence)...
   TileRect* const rect_of = reusable_buffer<TileRect, 1>(n);
-  at::parallel_for(0, n, 4096, [&](int64_t g0, int64_t g1) {
+  Splat* const splat_of = reusable_buffer<Splat, 2>(n);
+  at::parallel_for(0, n, 2048, [&](int64_t g0, int64_t g1) {
     for (int64_t g = g0; g < g1; ++g) {
       if (!tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect_of[g])) {
         rect_of[g] = TileRect{0, -1, 0, -1};
+        continue;
       }
+      Splat& sp = splat_of[g];
+      sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
+                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
+      alpha_bounds(sp);
+      TileRect clipped = rect_of[g];
+      clip_to_alpha_extent(sp, &clipped);
+      rect_of[g] = clipped.x1 >= clipped.x0 ? clipped : TileRect{0, -2, 0, -2};  // binned, but no tile left
     }
   });
+  // ...then those with a 3-sigma rectangle, sorted by depth...
   std::vector<uint32_t> keys;
   std::vector<int32_t> ids;
   keys.reserve(n);
   ids.reserve(n);
   for (int64_t g = 0; g < n; ++g) {
-    if (rect_of[g].x1 >= rect_of[g].x0) {
+    if (rect_of[g].x1 != -1) {
       keys.push_back(depth_key(dp[g]));
       ids.push_back(static_cast<int32_t>(g));
     }
@@ -439,18 +449,18 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   b.order = std::move(ids);
   const int64_t n_vis = static_cast<int64_t>(b.order.size());
 
+  // ...and their splats and clipped rectangles gathered into depth order (one record each, fetched ahead).
   Splat* const splats = reusable_buffer<Splat, 0>(n_vis);
   TileRect* const rects = reusable_buffer<TileRect, 0>(n_vis);
   b.splats = splats;
   at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
+    constexpr int64_t kAhead = 16;
     for (int64_t s = s0; s < s1; ++s) {
+      if (s + kAhead < s1) __builtin_prefetch(splat_of + b.order[s + kAhead]);
       const int64_t g = b.order[s];
-      Splat& sp = splats[s];
-      sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
-                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
-      alpha_bounds(sp);
-      rects[s] = rect_of[g];
-      clip_to_alpha_extent(sp, &rects[s]);
+      splats[s] = splat_of[g];
+      const TileRect r = rect_of[g];
+      rects[s] = r.x1 >= r.x0 ? r : TileRect{0, -1, 0, -1};
     }
   });
   b.slot_offset.assign(n_vis + 1, 0);
