@@ -30,6 +30,15 @@ With `scale` < 1 the shifted view is rendered at that fraction of the training v
 warp samples it (bilinearly) at the training view's full-resolution pixels, so the training depth
 keeps its full-resolution gradient while the extra render costs a fraction of a full one.
 
+With `bands` = k > 1 each step supervises one of k horizontal bands of the training view (bands
+of whole 16-pixel tile rows, picked at random each step, so every row is supervised equally often
+over the run): the shifted camera is cropped to the band's rows (its principal point moved, its height
+the band's), which a pure x shift keeps inside the band, so the extra render costs about 1 / k of a
+full one. The terms are the band's means, whose expectation over the band drawn is the full view's.
+A band renders its rows as the full view does, except within a few rows of an inner band edge, where
+a Gaussian centred beyond the edge meets the projection's frustum clamp there (the colour moves by up
+to ~1e-3 on the tests' scene; tested).
+
 The shifted render goes through `Trainer.render_for_training` (dropout applies to it too) but is
 not added to `ctx.renders`: as in the paper's code, densification statistics come from the
 training view only. Its random baseline comes from the trainer's seeded generator.
@@ -53,6 +62,8 @@ DEFAULT_BASELINE_FRACTION = 0.1  # of the scene depth: 0.34 units on Blender's o
 DEFAULT_RIG_FRACTION = 0.75  # cap: of the mean distance from a training camera to its nearest neighbour
 DEFAULT_START_FRACTION = 0.6
 DEFAULT_SCALE = 1.0  # render size of the shifted view, a fraction of the training view's
+DEFAULT_BANDS = 1  # the training view in one band (the whole view) per step
+BAND_ALIGN = 16  # band edges on the rasteriser's tile rows
 MIN_OPAQUE = 0.5  # a training pixel takes part where the rendered alpha says a surface is there
 
 
@@ -60,6 +71,23 @@ def shifted_camera(camera: Camera, baseline: float) -> Camera:
     """`camera` moved by `baseline` along its own x axis (x_cam' = x_cam - (b, 0, 0)); same intrinsics."""
     t = np.asarray(camera.t, dtype=np.float64) - np.array([baseline, 0.0, 0.0])
     return replace(camera, t=t, name=f"{camera.name}@x{baseline:+.4g}")
+
+
+def band_rows(height: int, bands: int, index: int) -> tuple[int, int]:
+    """Rows [y0, y1) of band `index` of `bands` horizontal bands of an image `height` rows high: edges at
+    multiples of BAND_ALIGN rows (the rasteriser's tiles), as even as that allows; never empty while
+    height >= bands * BAND_ALIGN (else the edges fall on whole rows)."""
+    align = BAND_ALIGN if height >= bands * BAND_ALIGN else 1
+
+    def edge(i: int) -> int:
+        return height if i >= bands else int(round(i * height / bands / align)) * align
+
+    return edge(index), edge(index + 1)
+
+
+def band_camera(camera: Camera, y0: int, y1: int) -> Camera:
+    """`camera` cropped to its rows [y0, y1): the same pose and focal lengths, the principal point moved."""
+    return replace(camera, cy=camera.cy - y0, height=y1 - y0, name=f"{camera.name}[rows {y0}:{y1}]")
 
 
 def surface_depth(depth: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
@@ -149,7 +177,10 @@ class BinocularConsistency(Technique):
     def __init__(self, weight: float = DEFAULT_WEIGHT, smooth_weight: float = DEFAULT_SMOOTH_WEIGHT,
                  baseline_fraction: float = DEFAULT_BASELINE_FRACTION, start_fraction: float = DEFAULT_START_FRACTION,
                  max_baseline: float | None = None, rig_fraction: float = DEFAULT_RIG_FRACTION,
-                 scale: float = DEFAULT_SCALE, every: int = 1):
+                 scale: float = DEFAULT_SCALE, every: int = 1, bands: int = DEFAULT_BANDS):
+        if not (isinstance(bands, int) and bands >= 1):
+            raise GsgsError(f"binocular: bands must be a whole number >= 1 (got {bands!r})")
+        self.bands = bands
         if not (isinstance(every, int) and every >= 1):
             raise GsgsError(f"binocular: every must be a whole number of steps >= 1 (got {every!r})")
         self.every = every
@@ -192,20 +223,25 @@ class BinocularConsistency(Technique):
         u = torch.rand(2, generator=tr.torch_gen)
         baseline = float(u[0]) * self.max_baseline * (1.0 if float(u[1]) < 0.5 else -1.0)
         camera = ctx.camera if ctx.camera is not None else tr.train_views[ctx.view_index].camera
+        depth, alpha, target = ctx.render.depth, ctx.render.alpha, ctx.target
+        if self.bands > 1:  # one band of rows this step (class docstring)
+            y0, y1 = band_rows(camera.height, self.bands, int(torch.randint(self.bands, (1,), generator=tr.torch_gen)))
+            camera = band_camera(camera, y0, y1)
+            depth, alpha, target = depth[y0:y1], alpha[y0:y1], target[y0:y1]
         shifted = shifted_camera(camera, baseline)
         if self.scale != 1.0:
             shifted = shifted.scaled(self.scale)
         out = tr.render_for_training(ctx, shifted, ctx.background)
-        z = surface_depth(ctx.render.depth, ctx.render.alpha)
+        z = surface_depth(depth, alpha)
         warped, valid = warp_shifted_to_view(camera, z, shifted, out.color)
-        mask = (valid & (ctx.render.alpha.detach() > MIN_OPAQUE)).detach()
+        mask = (valid & (alpha.detach() > MIN_OPAQUE)).detach()
         self.steps += 1
         self.last_valid = float(mask.float().mean())
-        terms = {"binocular_l1": (self.weight, masked_l1(warped, ctx.target, mask))}
+        terms = {"binocular_l1": (self.weight, masked_l1(warped, target, mask))}
         if self.smooth_weight > 0:
             disparity = camera.fx * abs(baseline) / z.clamp_min(1e-6)
             terms["binocular_smooth"] = (self.smooth_weight,
-                                         edge_aware_smoothness(disparity * mask.to(disparity.dtype), ctx.target))
+                                         edge_aware_smoothness(disparity * mask.to(disparity.dtype), target))
         return terms
 
     def state_dict(self) -> dict:
@@ -222,5 +258,5 @@ class BinocularConsistency(Technique):
         return {"weight": self.weight, "smooth_weight": self.smooth_weight, "max_baseline": self.max_baseline,
                 "baseline_fraction": self.baseline_fraction, "scene_depth": self.scene_depth,
                 "rig_baseline": self.rig_baseline, "rig_fraction": self.rig_fraction, "scale": self.scale,
-                "every": self.every,
+                "every": self.every, "bands": self.bands,
                 "start_step": self.start, "steps": self.steps, "last_valid_fraction": round(self.last_valid, 4)}
