@@ -74,3 +74,42 @@ def test_thread_count_does_not_change_the_result():
     finally:
         torch.set_num_threads(before)
     assert torch.equal(results[0][0], results[1][0]) and torch.equal(results[0][1], results[1][1])
+
+
+def _torch_masked(img, target, mask):
+    """losses.dssim_loss's torch form of the masked SSIM: the channel-mean map's masked mean."""
+    from gsgs_engine.metrics import ssim_map
+
+    m = mask.to(img.dtype)
+    return (ssim_map(img, target)[0].mean(dim=0) * m).sum() / m.sum().clamp_min(1.0)
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 2e-6)])
+def test_masked_value_and_gradient_match_the_torch_form(dtype, tol):
+    """Pseudo views' masked D-SSIM: hard, soft, sparse (sum below 1: the clamp) and empty masks."""
+    img, target = _pair(45, 38, dtype, seed=7)
+    g = torch.Generator().manual_seed(8)
+    masks = {"hard": torch.rand(45, 38, generator=g) > 0.4, "soft": torch.rand(45, 38, generator=g),
+             "sparse": torch.zeros(45, 38), "empty": torch.zeros(45, 38)}
+    masks["sparse"][3, 4] = 0.3
+    for name, mask in masks.items():
+        a, b = img.clone().requires_grad_(), img.clone().requires_grad_()
+        want, got = _torch_masked(a, target, mask), ssim_mean(b, target, mask)
+        assert got is not None
+        assert abs(float(got.detach()) - float(want.detach())) <= tol, name
+        want.backward()
+        got.backward()
+        assert torch.isfinite(b.grad).all(), name
+        if name == "empty":
+            assert float(got.detach()) == 0.0 and torch.all(b.grad == 0)
+        else:
+            assert float((a.grad - b.grad).norm() / a.grad.norm().clamp_min(1e-30)) <= 10 * tol, name
+    # an all-ones mask is the unmasked mean, to the bit
+    x, y = img.clone().requires_grad_(), img.clone().requires_grad_()
+    plain, ones = ssim_mean(x, target), ssim_mean(y, target, torch.ones(45, 38))
+    plain.backward()
+    ones.backward()
+    assert torch.equal(plain.detach(), ones.detach()) and torch.equal(x.grad, y.grad)
+    # dssim_loss takes the compiled path for a mask too
+    loss = dssim_loss(img.clone().requires_grad_(), target, masks["soft"])
+    assert abs(float(loss.detach()) - (1 - float(_torch_masked(img, target, masks["soft"])))) <= tol

@@ -29,9 +29,11 @@ def dssim_loss(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | 
     from gsgs_engine.metrics import ssim, ssim_map
     from gsgs_engine.train.fused_ssim import ssim_mean
 
+    fused = ssim_mean(render, target, mask)  # compiled CPU path; None elsewhere
+    if fused is not None:
+        return 1.0 - fused
     if mask is None:
-        fused = ssim_mean(render, target)  # compiled CPU path; None elsewhere
-        return 1.0 - (ssim(render, target) if fused is None else fused)
+        return 1.0 - ssim(render, target)
     return 1.0 - _masked_mean(ssim_map(render, target)[0].mean(dim=0), mask)
 
 

@@ -11,6 +11,9 @@
 // D = s11 + s22 + C2 (s11 = e11 - mu1^2, s12 = e12 - mu1 mu2):
 //   dS/dmu1 = ssim (2 mu2 / A - 2 mu2 / B - 2 mu1 / Cc + 2 mu1 / D),  dS/de11 = -ssim / D,
 //   dS/de12 = 2 ssim / B (evaluated as 2 A / (Cc D): B may be 0).
+// With a mask m (H x W weights) the value is the masked mean of the channel-mean SSIM map,
+// sum_p m_p mean_c ssim_pc / max(sum_p m_p, 1) (losses.dssim_loss's torch form): each pixel's coefficients are
+// scaled by m_p before the gradient's blurs, and the mean divides by C max(sum m, 1).
 // Strips of rows are split over ATen's threads; every output value is computed by one thread in a fixed order and
 // the mean is summed per row, then over rows in order, so the result does not depend on the thread count.
 
@@ -152,8 +155,8 @@ inline __attribute__((always_inline)) void ssim_row(const S* __restrict vb, int 
 // row_sum[c * H + y], in double, in order) and the three coefficient planes of its gradient, from the five blurred
 // maps x, y, x^2, y^2, x y.
 template <typename S>
-GSGS_HOT void ssim_forward_strips(const S* xi, const S* yi, const S* w, SsimShape d, S c1, S c2, S* coef,
-                                  double* row_sum, S* scratch, int64_t job0, int64_t job1) {
+GSGS_HOT void ssim_forward_strips(const S* xi, const S* yi, const S* w, const S* mask, SsimShape d, S c1, S c2,
+                                  S* coef, double* row_sum, S* scratch, int64_t job0, int64_t job1) {
   const int H = d.H, W = d.W;
   const int64_t plane = static_cast<int64_t>(H) * W;
   for (int64_t job = job0; job < job1; ++job) {
@@ -181,9 +184,20 @@ GSGS_HOT void ssim_forward_strips(const S* xi, const S* yi, const S* w, SsimShap
         blur_col<S>([&](int yy) { return map + static_cast<int64_t>(yy - ya) * W; }, vb + m * W, y, H, W, w, d.taps);
       }
       S* const sv = vb + 5 * static_cast<int64_t>(W);  // [W]: this row's SSIM values
-      ssim_row(vb, W, c1, c2, sv, coef + 3 * c * plane + static_cast<int64_t>(y) * W, plane);
+      S* const k = coef + 3 * c * plane + static_cast<int64_t>(y) * W;
+      ssim_row(vb, W, c1, c2, sv, k, plane);
       double sum = 0.0;
-      for (int x = 0; x < W; ++x) sum += static_cast<double>(sv[x]);
+      if (mask == nullptr) {
+        for (int x = 0; x < W; ++x) sum += static_cast<double>(sv[x]);
+      } else {  // each pixel's SSIM and its gradient coefficients weighted by the mask
+        const S* const mr = mask + static_cast<int64_t>(y) * W;
+        for (int x = 0; x < W; ++x) {
+          sum += static_cast<double>(mr[x] * sv[x]);
+          k[x] *= mr[x];
+          k[plane + x] *= mr[x];
+          k[2 * plane + x] *= mr[x];
+        }
+      }
       row_sum[static_cast<int64_t>(c) * H + y] = sum;
     }
   }
@@ -221,7 +235,7 @@ GSGS_HOT void ssim_backward_strips(const S* xi, const S* yi, const S* w, SsimSha
 
 template <typename S>
 std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Tensor& target, const at::Tensor& window,
-                                             double c1_d, double c2_d) {
+                                             const S* mask, double c1_d, double c2_d) {
   const SsimShape d{static_cast<int>(img.size(0)), static_cast<int>(img.size(1)), static_cast<int>(img.size(2)),
                     static_cast<int>(window.numel())};
   const int64_t plane = static_cast<int64_t>(d.H) * d.W;
@@ -237,11 +251,16 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
   std::vector<double> row_sum(static_cast<size_t>(d.C) * d.H, 0.0);
   at::parallel_for(0, jobs, 1, [&](int64_t j0, int64_t j1) {
     S* scratch = gsgs_scratch::reusable_buffer<S, 1>(scratch_len);  // this worker's own
-    ssim_forward_strips(xi, yi, w, d, c1, c2, coef, row_sum.data(), scratch, j0, j1);
+    ssim_forward_strips(xi, yi, w, mask, d, c1, c2, coef, row_sum.data(), scratch, j0, j1);
   });
   double total = 0.0;
   for (double v : row_sum) total += v;
-  const double count = static_cast<double>(plane) * d.C;
+  double count = static_cast<double>(plane) * d.C;
+  if (mask != nullptr) {  // C max(sum m, 1), the weights summed in double in order
+    double weight = 0.0;
+    for (int64_t p = 0; p < plane; ++p) weight += static_cast<double>(mask[p]);
+    count = d.C * std::max(weight, 1.0);
+  }
 
   at::Tensor grad = at::empty_like(img);
   const S inv_count = static_cast<S>(1.0 / count);
@@ -254,9 +273,11 @@ std::tuple<at::Tensor, at::Tensor> ssim_impl(const at::Tensor& img, const at::Te
   return {mean, grad};
 }
 
-// -> (mean SSIM, d mean / d img), for img and target [H, W, C] of one float dtype.
+// -> (mean SSIM, d mean / d img), for img and target [H, W, C] of one float dtype; with `mask` [H, W] (the same
+// dtype) the masked mean (file comment).
 std::tuple<at::Tensor, at::Tensor> ssim_forward_backward(const at::Tensor& img, const at::Tensor& target,
-                                                         const at::Tensor& window, double c1, double c2) {
+                                                         const at::Tensor& window, const c10::optional<at::Tensor>& mask,
+                                                         double c1, double c2) {
   TORCH_CHECK(img.device().is_cpu() && target.device().is_cpu() && window.device().is_cpu(),
               "ssim_cpu: CPU tensors only");
   TORCH_CHECK(img.dim() == 3 && img.sizes() == target.sizes(), "ssim_cpu: img and target must both be [H, W, C], got ",
@@ -267,13 +288,21 @@ std::tuple<at::Tensor, at::Tensor> ssim_forward_backward(const at::Tensor& img, 
   TORCH_CHECK(img.is_contiguous() && target.is_contiguous() && window.is_contiguous(), "ssim_cpu: contiguous tensors only");
   TORCH_CHECK(window.dim() == 1 && window.numel() % 2 == 1, "ssim_cpu: the window must be 1D with an odd length");
   TORCH_CHECK(img.numel() > 0, "ssim_cpu: empty image");
-  if (img.scalar_type() == at::kDouble) return ssim_impl<double>(img, target, window, c1, c2);
-  return ssim_impl<float>(img, target, window, c1, c2);
+  const at::Tensor* m = mask.has_value() ? &mask.value() : nullptr;
+  if (m != nullptr) {
+    TORCH_CHECK(m->device().is_cpu() && m->scalar_type() == img.scalar_type() && m->is_contiguous() &&
+                    m->dim() == 2 && m->size(0) == img.size(0) && m->size(1) == img.size(1),
+                "ssim_cpu: the mask must be a contiguous [H, W] CPU tensor of the image's dtype, got ", m->sizes());
+  }
+  if (img.scalar_type() == at::kDouble)
+    return ssim_impl<double>(img, target, window, m ? m->data_ptr<double>() : nullptr, c1, c2);
+  return ssim_impl<float>(img, target, window, m ? m->data_ptr<float>() : nullptr, c1, c2);
 }
 
 }  // namespace
 
 TORCH_LIBRARY_FRAGMENT(gsgs_raster_cpu, m) {
-  m.def("ssim_forward_backward(Tensor img, Tensor target, Tensor window, float c1, float c2) -> (Tensor, Tensor)",
+  m.def("ssim_forward_backward(Tensor img, Tensor target, Tensor window, Tensor? mask, float c1, float c2) -> "
+        "(Tensor, Tensor)",
         &ssim_forward_backward);
 }
