@@ -214,18 +214,18 @@ def _function():
         @staticmethod
         def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, background):
             ops = _ops()
-            (color, depth, alpha, final_T, last, tile_offsets, tile_ranks, entry_slots, order,
-             slot_offset) = ops.forward(means2d, conics, colors, opacities, depths, radii, width, height, background)
+            (color, depth, alpha, final_T, last, tile_offsets, tile_ranks, entry_slots, order, slot_offset,
+             splats) = ops.forward(means2d, conics, colors, opacities, depths, radii, width, height, background)
             ctx.size = (width, height)
             ctx.save_for_backward(means2d, conics, colors, opacities, depths, radii, background, final_T, last,
-                                  tile_offsets, tile_ranks, entry_slots, order, slot_offset)
+                                  tile_offsets, tile_ranks, entry_slots, order, slot_offset, splats)
             return color, depth, alpha
 
         @staticmethod
         @torch.autograd.function.once_differentiable
         def backward(ctx, grad_color, grad_depth, grad_alpha):
             (means2d, conics, colors, opacities, depths, radii, background, final_T, last, tile_offsets,
-             tile_ranks, entry_slots, order, slot_offset) = ctx.saved_tensors
+             tile_ranks, entry_slots, order, slot_offset, splats) = ctx.saved_tensors
             width, height = ctx.size
 
             def dense(grad, shape):
@@ -238,7 +238,7 @@ def _function():
             grad_alpha = dense(grad_alpha, (height, width))
             g_means, g_conics, g_colors, g_opac, g_depths = _ops().backward(
                 means2d, conics, colors, opacities, depths, radii, width, height, background, final_T, last,
-                tile_offsets, tile_ranks, entry_slots, order, slot_offset, grad_color, grad_depth, grad_alpha)
+                tile_offsets, tile_ranks, entry_slots, order, slot_offset, splats, grad_color, grad_depth, grad_alpha)
             g_background = None
             if ctx.needs_input_grad[8]:
                 # colour = ... + T_final * background

@@ -49,6 +49,7 @@ constexpr float kMinTransmittance = 1e-4f;
 const double kLogMinAlpha = std::log(static_cast<double>(kMinAlpha));
 const double kLog255 = std::log(255.0);
 constexpr int kGradFields = 10;  // mx, my, A, B, C, r, g, b, opacity, depth
+constexpr int kSplatFloats = 13;  // a Splat record, as the float32 tensor [n_vis, 13] the forward hands the backward
 
 #define GSGS_INLINE inline __attribute__((always_inline))
 // Vector helpers are always inlined, so their 32-byte arguments never cross a call boundary.
@@ -64,6 +65,8 @@ struct Splat {
   float ext_x, ext_y;  // half-extent of the region where alpha >= 1/255 (+margin); < 0: never
   float power_floor;   // exponent below which alpha < 1/255 (power_floor())
 };
+
+static_assert(sizeof(Splat) == kSplatFloats * sizeof(float), "Splat is a record of floats (kept as a tensor)");
 
 // Eight float lanes (GCC/Clang vector extensions): one AVX register in the AVX2 clone, two SSE
 // registers in the portable one. Explicit vectors, because GCC leaves the masked lane loops scalar.
@@ -371,7 +374,7 @@ const TileKernels& tile_kernels() {
 // Visible Gaussians in (depth, index) order and their per-tile lists.
 struct Binning {
   std::vector<int32_t> order;        // rank -> Gaussian index
-  const Splat* splats = nullptr;     // by rank (a reusable buffer of the calling thread)
+  at::Tensor splats;                 // float32 [n_vis, kSplatFloats]: the Splat records by rank
   std::vector<int32_t> slot_offset;  // rank -> first gradient slot (size n_vis + 1)
   at::Tensor tile_offsets;           // int32 [n_tiles + 1]
   at::Tensor tile_ranks;             // int32 [n_entries], depth-sorted per tile
@@ -400,6 +403,11 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
   TORCH_CHECK(width > 0 && height > 0 && width <= (1 << 20) && height <= (1 << 20),
               "rasterize_cpu: image size must be positive, got ", width, "x", height);
   TORCH_CHECK(n < std::numeric_limits<int32_t>::max(), "rasterize_cpu: too many Gaussians");
+}
+
+// The Splat records of a float32 [n, kSplatFloats] tensor (its storage, viewed as records).
+Splat* splat_records(const at::Tensor& t) {
+  return reinterpret_cast<Splat*>(t.data_ptr<float>());
 }
 
 Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
@@ -449,10 +457,11 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   b.order = std::move(ids);
   const int64_t n_vis = static_cast<int64_t>(b.order.size());
 
-  // ...and their splats and clipped rectangles gathered into depth order (one record each, fetched ahead).
-  Splat* const splats = reusable_buffer<Splat, 0>(n_vis);
+  // ...and their splats and clipped rectangles gathered into depth order (one record each, fetched ahead). The
+  // splats outlive the call: the backward composites from the same records.
+  b.splats = at::empty({n_vis, kSplatFloats}, at::kFloat);
+  Splat* const splats = splat_records(b.splats);
   TileRect* const rects = reusable_buffer<TileRect, 0>(n_vis);
-  b.splats = splats;
   at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
     constexpr int64_t kAhead = 16;
     for (int64_t s = s0; s < s1; ++s) {
@@ -533,11 +542,11 @@ std::vector<int32_t> tile_schedule(const int32_t* offsets, int n_tiles) {
 }
 
 using ForwardResult = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor,
-                                 at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
+                                 at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
 
 // -> color [H,W,3], depth [H,W], alpha [H,W], and for the backward: final T [H,W], last contributor
 // [H,W] (1-based position in the tile list), tile offsets, tile lists (ranks), entry slots, rank ->
-// Gaussian order, rank -> first slot.
+// Gaussian order, rank -> first slot, the splat records by rank.
 ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                                 const at::Tensor& opacities, const at::Tensor& depths, const at::Tensor& radii,
                                 int64_t width, int64_t height, const at::Tensor& background) {
@@ -561,10 +570,11 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
   float* alpha_p = alpha.data_ptr<float>();
   float* T_p = final_T.data_ptr<float>();
   int32_t* last_p = last.data_ptr<int32_t>();
+  const Splat* const splats = splat_records(b.splats);
   const ForwardTileFn forward_tile = tile_kernels().forward;
   for_each_tile(tile_schedule(offsets, tiles_x * tiles_y), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
-    forward_tile(b.splats, ranks + offsets[t], offsets[t + 1] - offsets[t], tx * kTile, ty * kTile, W, H,
+    forward_tile(splats, ranks + offsets[t], offsets[t + 1] - offsets[t], tx * kTile, ty * kTile, W, H,
                  bg, color_p, depth_p, alpha_p, T_p, last_p);
   });
 
@@ -574,7 +584,8 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
   at::Tensor slot_offset = at::empty({n_vis + 1}, at::kInt);
   if (n_vis > 0) std::memcpy(order.data_ptr<int32_t>(), b.order.data(), n_vis * sizeof(int32_t));
   std::memcpy(slot_offset.data_ptr<int32_t>(), b.slot_offset.data(), (n_vis + 1) * sizeof(int32_t));
-  return {color, depth, alpha, final_T, last, b.tile_offsets, b.tile_ranks, b.entry_slots, order, slot_offset};
+  return {color, depth, alpha, final_T, last, b.tile_offsets, b.tile_ranks, b.entry_slots, order, slot_offset,
+          b.splats};
 }
 
 // -> grad means2d [N,2], conics [N,3], colors [N,3], opacities [N], depths [N].
@@ -582,7 +593,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
     const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors, const at::Tensor& opacities,
     const at::Tensor& depths, const at::Tensor& radii, int64_t width, int64_t height, const at::Tensor& background,
     const at::Tensor& final_T, const at::Tensor& last, const at::Tensor& tile_offsets, const at::Tensor& tile_ranks,
-    const at::Tensor& entry_slots, const at::Tensor& order, const at::Tensor& slot_offset,
+    const at::Tensor& entry_slots, const at::Tensor& order, const at::Tensor& slot_offset, const at::Tensor& splat_t,
     const at::Tensor& grad_color, const at::Tensor& grad_depth, const at::Tensor& grad_alpha) {
   check_inputs(means2d, conics, colors, opacities, depths, radii, width, height, background);
   const int W = static_cast<int>(width), H = static_cast<int>(height);
@@ -602,24 +613,13 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   TORCH_CHECK(tile_offsets.numel() == n_tiles + 1 && slot_offset.numel() == n_vis + 1,
               "rasterize_cpu backward: saved state does not match the image size");
 
+  TORCH_CHECK(splat_t.scalar_type() == at::kFloat && splat_t.is_contiguous() &&
+                  splat_t.sizes() == at::IntArrayRef({n_vis, kSplatFloats}),
+              "rasterize_cpu backward: bad saved state (splat records)");
+
   gsgs_phase::Lap lap;
-  // Packed records again (cheaper to rebuild than to keep alive between the passes).
-  const float* m = means2d.data_ptr<float>();
-  const float* cn = conics.data_ptr<float>();
-  const float* col = colors.data_ptr<float>();
-  const float* op = opacities.data_ptr<float>();
-  const float* dp = depths.data_ptr<float>();
   const int32_t* ord = order.data_ptr<int32_t>();
-  Splat* const splats = reusable_buffer<Splat, 1>(n_vis);
-  at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
-    for (int64_t s = s0; s < s1; ++s) {
-      const int64_t g = ord[s];
-      Splat& sp = splats[s];
-      sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
-                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
-      alpha_bounds(sp);
-    }
-  });
+  const Splat* const splats = splat_records(splat_t);  // the forward's records: the same skip decisions
 
   const int32_t* offsets = tile_offsets.data_ptr<int32_t>();
   const int32_t* ranks = tile_ranks.data_ptr<int32_t>();
@@ -698,12 +698,12 @@ TORCH_LIBRARY(gsgs_raster_cpu, m) {
   m.def(
       "forward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
       "int width, int height, Tensor background) -> (Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, "
-      "Tensor, Tensor, Tensor)",
+      "Tensor, Tensor, Tensor, Tensor)",
       &rasterize_forward);
   m.def(
       "backward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
       "int width, int height, Tensor background, Tensor final_T, Tensor last, Tensor tile_offsets, "
-      "Tensor tile_ranks, Tensor entry_slots, Tensor order, Tensor slot_offset, Tensor grad_color, "
+      "Tensor tile_ranks, Tensor entry_slots, Tensor order, Tensor slot_offset, Tensor splats, Tensor grad_color, "
       "Tensor grad_depth, Tensor grad_alpha) -> (Tensor, Tensor, Tensor, Tensor, Tensor)",
       &rasterize_backward);
 }
