@@ -1,15 +1,15 @@
 """A training time estimate the Train panel states before a job starts.
 
 Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine (seed 0, 1000 steps, two
-threads, one after another with nothing else running, 2026-11-26 20:32-20:40, this build), one reference per recipe
+threads, one after another with nothing else running, 2026-11-27 00:53-01:01, this build), one reference per recipe
 the engine can run, because they differ more than any single factor allows:
-  - plain 3DGS: LLFF flower, 3 views at 504x378, 125.2 s (151,220 Gaussians: without the count control real
+  - plain 3DGS: LLFF flower, 3 views at 504x378, 117.5 s (151,220 Gaussians: without the count control real
     photos grow them unchecked);
   - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
     dropout, the binocular shift every second step, no pseudo views): NeRF-synthetic lego, 8 views at 400x400,
-    77.7 s;
+    68.8 s;
   - `--prior auto` on a forward-facing rig (density-guided dropout, the binocular shift every step, warp-inpaint
-    pseudo views at half size): LLFF flower at 504x378, 187.7 s.
+    pseudo views at half size): LLFF flower at 504x378, 170.2 s.
   The machine's day moves such figures by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and
   531 s that afternoon, and 319 s the day after): the machine probe below scales them.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
@@ -18,8 +18,9 @@ Per step the time grows less than linearly with a view's pixels: seconds per ste
 between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
 Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3 photos,
 balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), right after the reference cells with a
-fresh timings log: the references give 96.7 s, the probe (24.3 ms against 22.5) 104.3 s, stated as "~2 min"; the
-job trained in 107.4 s, 123 s end to end. It is a rough figure (scene content and Gaussian counts move it too)
+fresh timings log: the references give 85.6 s, the probe (19.4 ms against 18.9) 88.1 s, stated as "~88 s"; the
+job trained in 98.1 s (the estimate 10 % short), 115 s end to end (session 11; session 10's build with its own
+references: stated 104.3 s, trained 107.4 s). It is a rough figure (scene content and Gaussian counts move it too)
 and the panel says so.
 
 This machine's own jobs correct it: a training job started from the add-on keeps the uncorrected estimate in its
@@ -37,9 +38,11 @@ compiled kernel, about 2 s with the interpreter's start; gsgs_engine/bench/machi
 references by its time over PROBE_REFERENCE_MS, the same probe on the reference cells' machine and day. The probe is
 kept beside the timings log (machine_probe.json) and re-run when older than PROBE_MAX_AGE_S; the panel shows the
 last one. The learned factor then corrects what the probe leaves (the recipe's content, the Gaussian count).
-Measured (session 10): the probe reads 22-23 ms on an idle machine and 44 ms beside a two-thread training. The
+Measured (session 10, with that build's probe of 22.5 ms): the probe read 22-23 ms on an idle machine and 44 ms beside
+a two-thread training. The
 Santorini workflow on a fresh log with a two-thread training beside it stated 169 s (the probe's factor 1.75) and
-trained in 200.9 s: 16 % short, where the references alone (96.7 s) would have been 52 % short.
+trained in 200.9 s: 16 % short, where the references alone (96.7 s) would have been 52 % short. The probe renders SH
+degree 3, whose projection session 11 made about twice as fast: its reference was measured again with the cells.
 """
 
 from __future__ import annotations
@@ -56,9 +59,9 @@ from gsgs_engine import GsgsError
 REFERENCE_ITERS = 1000
 # recipe -> (seconds for REFERENCE_ITERS steps, pixels of a training view) measured as above
 REFERENCES = {
-    "plain": (125.2, 504 * 378),
-    "orbit": (77.7, 400 * 400),
-    "forward": (187.7, 504 * 378),
+    "plain": (117.5, 504 * 378),
+    "orbit": (68.8, 400 * 400),
+    "forward": (170.2, 504 * 378),
 }
 # The orbit recipe of long schedules renders the binocular view at every step, not every second one: lego auto at
 # 1000 steps took 201 s that way against 157 s, back to back on a quiet machine (2026-11-26, docs/speed.md).
@@ -73,7 +76,7 @@ MIN_LEARN_ITERS = 100
 MIN_LEARN_SECONDS = 10.0
 FACTOR_RANGE = (0.2, 5.0)  # a correction outside this says more about a broken log than about the machine
 PROBE_FILE = "machine_probe.json"  # beside the timings log: the machine's last speed probe
-PROBE_REFERENCE_MS = 22.5  # `gsgs bench machine` around the reference cells (2 threads): median of 6, 21.9-23.3
+PROBE_REFERENCE_MS = 18.9  # `gsgs bench machine` right after the reference cells (2 threads): median of 3, 18.5-19.1
 PROBE_MAX_AGE_S = 900.0  # the Train operator probes again after this
 PROBE_TIMEOUT_S = 60.0
 
