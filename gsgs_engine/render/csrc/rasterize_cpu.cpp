@@ -423,32 +423,30 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   const int n_tiles = tiles_x * tiles_y;
 
   Binning b;
-  // Every Gaussian's 3-sigma tile rectangle (x1 < x0: none) and, where it has one, its splat and the rectangle
-  // clipped to its alpha box: on all threads, in index order (the inputs read in sequence)...
+  // Every Gaussian: whether its 3-sigma tile rectangle reaches the image (it is binned) and, where it does, its
+  // splat and that rectangle clipped to its alpha box (possibly empty): on all threads, in index order (the inputs
+  // read in sequence)...
+  uint8_t* const binned = reusable_buffer<uint8_t, 0>(n);
   TileRect* const rect_of = reusable_buffer<TileRect, 1>(n);
   Splat* const splat_of = reusable_buffer<Splat, 2>(n);
   at::parallel_for(0, n, 2048, [&](int64_t g0, int64_t g1) {
     for (int64_t g = g0; g < g1; ++g) {
-      if (!tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect_of[g])) {
-        rect_of[g] = TileRect{0, -1, 0, -1};
-        continue;
-      }
+      binned[g] = tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect_of[g]) ? 1 : 0;
+      if (!binned[g]) continue;
       Splat& sp = splat_of[g];
       sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
                  col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
       alpha_bounds(sp);
-      TileRect clipped = rect_of[g];
-      clip_to_alpha_extent(sp, &clipped);
-      rect_of[g] = clipped.x1 >= clipped.x0 ? clipped : TileRect{0, -2, 0, -2};  // binned, but no tile left
+      clip_to_alpha_extent(sp, &rect_of[g]);
     }
   });
-  // ...then those with a 3-sigma rectangle, sorted by depth...
+  // ...then the binned ones sorted by depth...
   std::vector<uint32_t> keys;
   std::vector<int32_t> ids;
   keys.reserve(n);
   ids.reserve(n);
   for (int64_t g = 0; g < n; ++g) {
-    if (rect_of[g].x1 != -1) {
+    if (binned[g]) {
       keys.push_back(depth_key(dp[g]));
       ids.push_back(static_cast<int32_t>(g));
     }
@@ -468,8 +466,7 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
       if (s + kAhead < s1) __builtin_prefetch(splat_of + b.order[s + kAhead]);
       const int64_t g = b.order[s];
       splats[s] = splat_of[g];
-      const TileRect r = rect_of[g];
-      rects[s] = r.x1 >= r.x0 ? r : TileRect{0, -1, 0, -1};
+      rects[s] = rect_of[g];
     }
   });
   b.slot_offset.assign(n_vis + 1, 0);

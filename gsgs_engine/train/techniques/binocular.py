@@ -34,7 +34,8 @@ With `bands` = k > 1 each step supervises one of k horizontal bands of the train
 of whole 16-pixel tile rows, picked at random each step, so every row is supervised equally often
 over the run): the shifted camera is cropped to the band's rows (its principal point moved, its height
 the band's), which a pure x shift keeps inside the band, so the extra render costs about 1 / k of a
-full one. The terms are the band's means, whose expectation over the band drawn is the full view's.
+full one. The terms are the band's means; the bands differ in height by at most a tile row, so their
+expectation over the band drawn is close to the full view's mean (equal for equal bands).
 A band renders its rows as the full view does, except within a few rows of an inner band edge, where
 a Gaussian centred beyond the edge meets the projection's frustum clamp there (the colour moves by up
 to ~1e-3 on the tests' scene; tested).
