@@ -13,6 +13,16 @@ GSGS_INLINE bool any_lane(vi mask) {
 #endif
 }
 
+// A tile composites a small share of the depth-ordered splat records, so consecutive entries lie far apart in
+// memory and each record is a cache miss unless it was asked for early: fetch the one kFetchAhead entries on,
+// both cache lines its 52 bytes may span. (Profiled on the rasterizer benchmark's 50k small splats: a quarter of
+// both tile bodies' samples were on the first load of the record.)
+constexpr int kFetchAhead = 8;
+GSGS_INLINE void fetch_splat(const Splat* s) {
+  __builtin_prefetch(s);
+  __builtin_prefetch(reinterpret_cast<const char*>(s) + sizeof(Splat) - 1);
+}
+
 // Forward of one tile. Per-pixel state lives in lane vectors; each Gaussian updates only the rows
 // (and 8-lane halves) its alpha ellipse reaches, branch-free inside a row.
 void forward_tile(GSGS_TILE_ARGS_F) {
@@ -32,7 +42,9 @@ void forward_tile(GSGS_TILE_ARGS_F) {
   vf px[kVecPerRow];
   pixel_centres(px0, px);
 
+  for (int j = 0; j < std::min(count, kFetchAhead); ++j) fetch_splat(splats + ranks[j]);
   for (int j = 0; j < count; ++j) {
+    if (j + kFetchAhead < count) fetch_splat(splats + ranks[j + kFetchAhead]);
     const Splat s = splats[ranks[j]];
     int r_lo, r_hi, v_lo = 0, v_hi = -1;
     reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
@@ -127,7 +139,10 @@ void backward_tile(GSGS_TILE_ARGS_B) {
   for (int j = count - 1; j >= max_last; --j) {
     std::memset(entry_grad + static_cast<int64_t>(slots[j]) * kGradFields, 0, kGradFields * sizeof(float));
   }
-  for (int j = std::min(count, max_last) - 1; j >= 0; --j) {
+  const int first = std::min(count, max_last) - 1;
+  for (int j = first; j >= std::max(first - kFetchAhead + 1, 0); --j) fetch_splat(splats + ranks[j]);
+  for (int j = first; j >= 0; --j) {
+    if (j >= kFetchAhead) fetch_splat(splats + ranks[j - kFetchAhead]);
     float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
     const Splat s = splats[ranks[j]];
     int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
