@@ -1,15 +1,15 @@
 """A training time estimate the Train panel states before a job starts.
 
 Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine (seed 0, 1000 steps, two
-threads, one after another with nothing else running, 2026-11-27 00:53-01:01, this build), one reference per recipe
+threads, one after another with nothing else running, 2026-11-27 03:06-03:13, this build), one reference per recipe
 the engine can run, because they differ more than any single factor allows:
-  - plain 3DGS: LLFF flower, 3 views at 504x378, 117.5 s (151,220 Gaussians: without the count control real
+  - plain 3DGS: LLFF flower, 3 views at 504x378, 88.1 s (151,220 Gaussians: without the count control real
     photos grow them unchecked);
   - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
     dropout, the binocular shift every second step, no pseudo views): NeRF-synthetic lego, 8 views at 400x400,
-    68.8 s;
-  - `--prior auto` on a forward-facing rig (density-guided dropout, the binocular shift every step, warp-inpaint
-    pseudo views at half size): LLFF flower at 504x378, 170.2 s.
+    63.5 s;
+  - `--prior auto` on a forward-facing rig (density-guided dropout, the binocular shift every step at half size,
+    warp-inpaint pseudo views at half size): LLFF flower at 504x378, 142.3 s.
   The machine's day moves such figures by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and
   531 s that afternoon, and 319 s the day after): the machine probe below scales them.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
@@ -18,9 +18,10 @@ Per step the time grows less than linearly with a view's pixels: seconds per ste
 between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
 Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3 photos,
 balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), right after the reference cells with a
-fresh timings log: the references give 85.6 s, the probe (19.4 ms against 18.9) 88.1 s, stated as "~88 s"; the
-job trained in 98.1 s (the estimate 10 % short), 115 s end to end (session 11; session 10's build with its own
-references: stated 104.3 s, trained 107.4 s). It is a rough figure (scene content and Gaussian counts move it too)
+fresh timings log: the references gave 79.6 s (the orbit one then rounded to 64 s; 79.0 s with 63.5), the probe
+(18.5 ms against 17.9) 82.3 s, stated as "~82 s"; the
+job trained in 88.8 s (the estimate 7 % short), 107 s end to end (session 12; session 11's build with its own
+references: stated ~88 s, trained 98.1 s). It is a rough figure (scene content and Gaussian counts move it too)
 and the panel says so.
 
 This machine's own jobs correct it: a training job started from the add-on keeps the uncorrected estimate in its
@@ -59,13 +60,16 @@ from gsgs_engine import GsgsError
 REFERENCE_ITERS = 1000
 # recipe -> (seconds for REFERENCE_ITERS steps, pixels of a training view) measured as above
 REFERENCES = {
-    "plain": (117.5, 504 * 378),
-    "orbit": (68.8, 400 * 400),
-    "forward": (170.2, 504 * 378),
+    "plain": (88.1, 504 * 378),
+    "orbit": (63.5, 400 * 400),
+    "forward": (142.3, 504 * 378),
 }
 # The orbit recipe of long schedules renders the binocular view at every step, not every second one: lego auto at
 # 1000 steps took 201 s that way against 157 s, back to back on a quiet machine (2026-11-26, docs/speed.md).
 ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
+# ... and the forward-facing recipe of long schedules renders the binocular view at full size, not half: flower auto
+# at 1000 steps trained in 160.1 s that way against 137.8 s (means of seeds 0-2, 2026-11-27, docs/speed.md).
+FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 TIMINGS_FILE = "train_timings.jsonl"
@@ -76,7 +80,7 @@ MIN_LEARN_ITERS = 100
 MIN_LEARN_SECONDS = 10.0
 FACTOR_RANGE = (0.2, 5.0)  # a correction outside this says more about a broken log than about the machine
 PROBE_FILE = "machine_probe.json"  # beside the timings log: the machine's last speed probe
-PROBE_REFERENCE_MS = 18.9  # `gsgs bench machine` right after the reference cells (2 threads): median of 3, 18.5-19.1
+PROBE_REFERENCE_MS = 17.9  # `gsgs bench machine` right after the reference cells (2 threads): median of 3, 17.5-20.4
 PROBE_MAX_AGE_S = 900.0  # the Train operator probes again after this
 PROBE_TIMEOUT_S = 60.0
 
@@ -118,6 +122,8 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
     seconds, ref_pixels = REFERENCES[kind]
     if kind == "orbit" and iterations >= AUTO_ORBIT_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
+    if kind == "forward" and generator == "auto" and iterations >= AUTO_ORBIT_LONG_STEPS:  # ... at full size
+        seconds *= FORWARD_FULL_VIEW_FACTOR
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
     per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT

@@ -257,6 +257,13 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     for recipe in (AUTO_FORWARD_TECHNIQUES, AUTO_ORBIT_TECHNIQUES):  # the same techniques, one option changed
         assert [t.split(":")[0] for t in recipe] == list(AUTO_TECHNIQUES)
     assert apply_effect_plan(front, TrainConfig(), AUTO)[1].techniques == list(AUTO_FORWARD_TECHNIQUES)
+    assert "binocular:scale=0.5" in AUTO_FORWARD_TECHNIQUES  # the shifted view at half size (measured at 1000 steps)
+    from gsgs_engine.effect_plan import AUTO_FORWARD_LONG_TECHNIQUES
+
+    front_long = plan_effects(make_scene(n_train=4, forward=True), TrainConfig(iters=AUTO_ORBIT_LONG_STEPS), AUTO, SH1,
+                              log=lambda m: None)["techniques"]  # a long schedule: the full-size view it was measured with
+    assert front_long.value == list(AUTO_FORWARD_LONG_TECHNIQUES) and "binocular" in AUTO_FORWARD_LONG_TECHNIQUES
+    assert "full size" in front_long.reason
     assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
     video = plan_effects(make_scene(times=[0.0, 0.3, 0.6, 1.0]), TrainConfig(), AUTO, SH1, log=lambda m: None)
     # the 4D recipe: one camera a frame here, so the few-camera one (dropout and opacity decay too)
