@@ -68,7 +68,8 @@ REFERENCES = {
 # 1000 steps took 201 s that way against 157 s, back to back on a quiet machine (2026-11-26, docs/speed.md).
 ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
 # ... and the forward-facing recipe of long schedules renders the binocular view at full size, not half: flower auto
-# at 1000 steps trained in 160.1 s that way against 137.8 s (means of seeds 0-2, 2026-11-27, docs/speed.md).
+# at 1000 steps trained in 160.1 s that way against 137.8 s (means of seeds 0-2 of the 3-seed grid, 2026-11-27, one
+# cell at a time with kernel builds beside some cells: not a quiet pair; docs/speed.md).
 FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
@@ -116,13 +117,13 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
                      max_side: int = 0, cameras=None) -> float:
     """Rough CPU seconds of a training run of `iterations` steps on views of width x height, from the reference
     runs alone (`machine_factor` corrects it for this machine)."""
-    from gsgs_engine.effect_plan import AUTO_ORBIT_LONG_STEPS
+    from gsgs_engine.effect_plan import AUTO_LONG_STEPS
 
     kind = recipe(generator, cameras)
     seconds, ref_pixels = REFERENCES[kind]
-    if kind == "orbit" and iterations >= AUTO_ORBIT_LONG_STEPS:  # the shifted view at every step (effect_plan)
+    if kind == "orbit" and iterations >= AUTO_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
-    if kind == "forward" and generator == "auto" and iterations >= AUTO_ORBIT_LONG_STEPS:  # ... at full size
+    if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... at full size
         seconds *= FORWARD_FULL_VIEW_FACTOR
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)

@@ -75,7 +75,7 @@ AUTO_ORBIT_MEASURED = ("the binocular view every second step on an object orbit:
 # step again: there the time matters less and the view buys more. NeRF-synthetic 8 views, 3000 steps, CPU, seeds 0-2:
 # 26.99 +- 0.07 -> 27.16 +- 0.11 dB (lego 25.40 -> 25.50, chair 28.58 -> 28.82; paired by seed +0.34 / +0.06 / +0.11;
 # SSIM 0.924 -> 0.925, LPIPS 0.076 -> 0.075), at about 1.28x a step (docs/speed.md).
-AUTO_ORBIT_LONG_STEPS = 3000
+AUTO_LONG_STEPS = 3000
 AUTO_ORBIT_LONG_TECHNIQUES = AUTO_TECHNIQUES
 AUTO_ORBIT_LONG_MEASURED = ("the binocular view at every step on an object orbit trained 3000 steps or more: "
                             "NeRF-synthetic 8 views at 3000 steps, seeds 0-2, 26.99 -> 27.16 dB (docs/speed.md)")
@@ -85,7 +85,7 @@ AUTO_FORWARD_LONG_TECHNIQUES = ("count_control", "dropout:guide=density", "binoc
 AUTO_FORWARD_LONG_MEASURED = ("density-guided dropout and the binocular view at full size on a forward-facing rig "
                               "trained 3000 steps or more: LLFF 3 views at 3000 steps, seeds 0-2, 20.86 dB "
                               "(docs/speed.md)")
-# the recipe of each rig type for schedules of AUTO_ORBIT_LONG_STEPS or more, where it differs
+# the recipe of each rig type for schedules of AUTO_LONG_STEPS or more, where it differs
 AUTO_LONG_RIG_RECIPES = {"forward-facing": (AUTO_FORWARD_LONG_TECHNIQUES, AUTO_FORWARD_LONG_MEASURED),
                          "object orbit": (AUTO_ORBIT_LONG_TECHNIQUES, AUTO_ORBIT_LONG_MEASURED)}
 # the recipe of each rig type; a rig not named here gets AUTO_TECHNIQUES
@@ -649,7 +649,7 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
                                        measured={"cameras_per_frame": per_frame})
     elif sparse:
         names, measured = AUTO_RIG_RECIPES.get(effects["rig"].value, (AUTO_TECHNIQUES, None))
-        if int(train_config.iters) >= AUTO_ORBIT_LONG_STEPS:
+        if int(train_config.iters) >= AUTO_LONG_STEPS:
             names, measured = AUTO_LONG_RIG_RECIPES.get(effects["rig"].value, (names, measured))
         effects["techniques"] = Effect("techniques", True, list(names),
                                        f"sparse: {sparse_why}; the measured weights-free recipe of {effects['rig'].value} "

@@ -237,13 +237,13 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     tc, pc = apply_effect_plan(few, TrainConfig(), AUTO)
     assert pc.techniques == list(AUTO_ORBIT_TECHNIQUES)
     # a long schedule (the best preset's 3000 steps): the shifted view at every step again, recorded as such
-    from gsgs_engine.effect_plan import AUTO_ORBIT_LONG_STEPS, AUTO_ORBIT_LONG_TECHNIQUES
+    from gsgs_engine.effect_plan import AUTO_LONG_STEPS, AUTO_ORBIT_LONG_TECHNIQUES
 
-    long_run = plan_effects(make_scene(n_train=4), TrainConfig(iters=AUTO_ORBIT_LONG_STEPS), AUTO, SH1,
+    long_run = plan_effects(make_scene(n_train=4), TrainConfig(iters=AUTO_LONG_STEPS), AUTO, SH1,
                             log=lambda m: None)
     assert long_run["techniques"].value == list(AUTO_ORBIT_LONG_TECHNIQUES) and "binocular" in AUTO_ORBIT_LONG_TECHNIQUES
     assert "every step" in long_run["techniques"].reason
-    assert plan_effects(make_scene(n_train=4), TrainConfig(iters=AUTO_ORBIT_LONG_STEPS - 1), AUTO, SH1,
+    assert plan_effects(make_scene(n_train=4), TrainConfig(iters=AUTO_LONG_STEPS - 1), AUTO, SH1,
                         log=lambda m: None)["techniques"].value == list(AUTO_ORBIT_TECHNIQUES)
     shell = plan(make_scene(n_train=4), overrides={"rig": "inward"})  # a shell: the base recipe (not measured there)
     assert shell["techniques"].value == list(AUTO_TECHNIQUES)
@@ -260,7 +260,7 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert "binocular:scale=0.5" in AUTO_FORWARD_TECHNIQUES  # the shifted view at half size (measured at 1000 steps)
     from gsgs_engine.effect_plan import AUTO_FORWARD_LONG_TECHNIQUES
 
-    front_long = plan_effects(make_scene(n_train=4, forward=True), TrainConfig(iters=AUTO_ORBIT_LONG_STEPS), AUTO, SH1,
+    front_long = plan_effects(make_scene(n_train=4, forward=True), TrainConfig(iters=AUTO_LONG_STEPS), AUTO, SH1,
                               log=lambda m: None)["techniques"]  # a long schedule: the full-size view it was measured with
     assert front_long.value == list(AUTO_FORWARD_LONG_TECHNIQUES) and "binocular" in AUTO_FORWARD_LONG_TECHNIQUES
     assert "full size" in front_long.reason
