@@ -123,6 +123,12 @@ class Camera:
         sx, sy = w / self.width, h / self.height
         return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=w, height=h)
 
+    def cropped_rows(self, y0: int, y1: int) -> "Camera":
+        """The same camera seeing only its rows [y0, y1): pose and focal lengths kept, the principal point moved."""
+        if not 0 <= y0 < y1 <= self.height:
+            raise ValueError(f"rows [{y0}, {y1}) are not inside the {self.height} rows of camera {self.name!r}")
+        return replace(self, cy=self.cy - y0, height=y1 - y0, name=f"{self.name}[rows {y0}:{y1}]")
+
     def with_pose(self, R: np.ndarray, t: np.ndarray, name: str | None = None) -> "Camera":
         return replace(self, R=np.asarray(R, dtype=np.float64), t=np.asarray(t, dtype=np.float64),
                        name=self.name if name is None else name)

@@ -88,7 +88,7 @@ def band_rows(height: int, bands: int, index: int) -> tuple[int, int]:
 
 def band_camera(camera: Camera, y0: int, y1: int) -> Camera:
     """`camera` cropped to its rows [y0, y1): the same pose and focal lengths, the principal point moved."""
-    return replace(camera, cy=camera.cy - y0, height=y1 - y0, name=f"{camera.name}[rows {y0}:{y1}]")
+    return camera.cropped_rows(y0, y1)
 
 
 def surface_depth(depth: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
