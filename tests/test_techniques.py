@@ -118,6 +118,38 @@ def test_guided_dropout_without_a_camera_keeps_its_guide():
     assert torch.isfinite(dense).all() and bool((dense == 0).any())
 
 
+def test_density_guided_dropout_makes_its_nearness_once_a_step(monkeypatch):
+    """Every render of a step passes the same means and names the step's camera: the nearness is made once and
+    the masks are those of a fresh computation; a new step, camera or set of means makes it again."""
+    import gsgs_engine.train.techniques.dropout as dropout_module
+
+    trainer = make_trainer(iters=100)
+    trainer.setup()
+    calls = []
+    real = dropout_module.nearness
+    monkeypatch.setattr(dropout_module, "nearness", lambda m, c: calls.append(1) or real(m, c))
+    means = trainer.model.means.detach()
+    n = means.shape[0]
+    ctx = ctx_for(trainer, 100)
+    ctx.camera = trainer.train_views[0].camera
+    drop = dropout_module.GaussianDropout(guide="density")
+    outs = []
+    for _ in range(3):
+        trainer.torch_gen.manual_seed(7)
+        outs.append(drop.render_inputs(ctx, {"means": means, "opacities": torch.full((n,), 0.5)})["opacities"])
+    assert len(calls) == 1 and all(torch.equal(o, outs[0]) for o in outs)
+    fresh = dropout_module.GaussianDropout(guide="density")
+    trainer.torch_gen.manual_seed(7)
+    assert torch.equal(fresh.render_inputs(ctx, {"means": means, "opacities": torch.full((n,), 0.5)})["opacities"],
+                       outs[0])
+    drop.render_inputs(ctx, {"means": means.clone(), "opacities": torch.full((n,), 0.5)})
+    ctx.step += 1
+    drop.render_inputs(ctx, {"means": means, "opacities": torch.full((n,), 0.5)})
+    ctx.camera = trainer.train_views[1].camera
+    drop.render_inputs(ctx, {"means": means, "opacities": torch.full((n,), 0.5)})
+    assert len(calls) == 2 + 3  # the fresh technique's, then one for each change
+
+
 def test_density_guided_dropout_survives_degenerate_centres():
     from gsgs_engine.train.techniques.dropout import guided_dropout_opacities, nearness, neighbourhood_density
     from test_trainer import look_at

@@ -154,6 +154,7 @@ class GaussianDropout(Technique):
         self._cells = None  # each Gaussian's voxel (guides density and anchor), refreshed as DENSITY_REFRESH says
         self._density = None  # percentile of each Gaussian's voxel count (guide=density)
         self._density_step = 0
+        self._near = None  # (step, camera, the means it was made from, nearness) of the last render
 
     def _refresh(self, means: torch.Tensor, step: int) -> None:
         stale = self._cells is None or self._cells.shape[0] != means.shape[0]
@@ -164,6 +165,14 @@ class GaussianDropout(Technique):
 
     def install(self, trainer) -> None:
         self.trainer = trainer
+
+    def _nearness(self, means: torch.Tensor, ctx: StepContext) -> torch.Tensor:
+        """`nearness` to the step's camera, made once a step: every render of a step (the training view, the
+        binocular and pseudo views) passes the same means and names the same camera."""
+        cached = self._near
+        if cached is None or cached[0] != ctx.step or cached[1] is not ctx.camera or cached[2] is not means:
+            cached = self._near = (ctx.step, ctx.camera, means, nearness(means, ctx.camera))
+        return cached[3]
 
     def render_inputs(self, ctx: StepContext, inputs: dict) -> dict:
         tr = ctx.trainer
@@ -179,7 +188,7 @@ class GaussianDropout(Technique):
             return {**inputs, "opacities": anchor_dropout_opacities(inputs["opacities"], rate, self._cells,
                                                                     tr.torch_gen)}
         # the trainer always names the step's camera; a caller without one gets the density term alone
-        near = nearness(inputs["means"], ctx.camera) if ctx.camera is not None else self._density
+        near = self._nearness(inputs["means"], ctx) if ctx.camera is not None else self._density
         score = DENSITY_WEIGHT * self._density + (1.0 - DENSITY_WEIGHT) * near
         return {**inputs, "opacities": guided_dropout_opacities(inputs["opacities"], rate, score, tr.torch_gen)}
 
