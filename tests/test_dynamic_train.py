@@ -189,6 +189,41 @@ def test_prune_uses_peak_opacity_within_the_clip(clip):
     assert info["pruned"] == 1 and torch.allclose(trainer.model.t_center.detach().cpu(), torch.tensor([0.5, 1.2]))
 
 
+def test_opacity_decay_of_a_4d_model_follows_each_gaussians_presence_at_the_step_time(clip):
+    from gsgs_engine.train.techniques.opacity_decay import OpacityDecay, decay_opacity_logits, step_presence
+
+    base = GaussianModel.from_points(np.array([[0.0, 0, 0], [0.3, 0, 0], [0, 0.3, 0], [0.3, 0.3, 0]]), None, 0)
+    with torch.no_grad():
+        base.params["opacity_logits"].copy_(torch.tensor([2.0, 2.0, 2.0, -30.0]))
+    # centred at the step's time 0.5 / one temporal scale away / far outside / faint and centred
+    model = SpacetimeModel.from_static(base, [0.5, 0.7, 3.0, 0.5], [0.1, 0.2, 0.1, 0.1])
+    trainer = _trainer_with_model(clip, model)
+    cam = replace(trainer.train_views[0].camera, time=0.5)
+    trainer.last_step_renders = [(None, cam)]
+    w = step_presence(trainer)
+    assert torch.allclose(w, torch.tensor([1.0, float(np.exp(-1.0)), 0.0, 1.0]), atol=1e-6)
+    before = torch.sigmoid(trainer.model.params["opacity_logits"].detach().clone())
+    plain = OpacityDecay(factor=0.9, start=1)  # the default: every Gaussian by the factor
+    saved = trainer.model.params["opacity_logits"].detach().clone()
+    plain.after_step(trainer, 1)
+    assert torch.allclose(torch.sigmoid(trainer.model.params["opacity_logits"].detach()), before * 0.9, rtol=1e-5)
+    with torch.no_grad():
+        trainer.model.params["opacity_logits"].copy_(saved)
+    decay = trainer.add_technique(OpacityDecay(factor=0.9, start=1, presence=1))
+    decay.after_step(trainer, 1)
+    after = torch.sigmoid(trainer.model.params["opacity_logits"].detach())
+    assert torch.isfinite(trainer.model.params["opacity_logits"]).all()
+    assert torch.allclose(after, before * torch.tensor([0.9, 0.9 ** float(np.exp(-1.0)), 1.0, 0.9]), rtol=1e-5, atol=0)
+    assert "4D" in decay.report()["presence"] and "off" in plain.report()["presence"]
+    with pytest.raises(GsgsError, match="presence"):
+        OpacityDecay(presence=2)
+    # a view without a time, or a 3D model: every Gaussian decays by the factor, as the float form does
+    trainer.last_step_renders = [(None, replace(cam, time=None))]
+    assert step_presence(trainer) is None
+    x = torch.tensor([-5.0, 0.0, 3.0])
+    assert torch.equal(decay_opacity_logits(x, torch.full((3,), 0.995)), decay_opacity_logits(x, 0.995))
+
+
 def test_training_steps_render_at_time_move_temporal_params_and_use_pseudo_times(clip):
     scene = load_dynamic_scene(clip, train_cameras=2)
     trainer = SpacetimeTrainer(scene, _config(iters=8))
