@@ -43,10 +43,15 @@ def rotation_at(quats: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor) -> t
     return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
+def temporal_weight(t_center: torch.Tensor, t_scale: torch.Tensor, t: float | torch.Tensor) -> torch.Tensor:
+    """exp(-((t - mu_t) / s_t)^2): the temporal radial basis, each Gaussian's share of its peak opacity at time t."""
+    return torch.exp(-((t - t_center) / t_scale) ** 2)
+
+
 def temporal_opacity(opacity_logits: torch.Tensor, t_center: torch.Tensor, t_scale: torch.Tensor,
                      t: float | torch.Tensor) -> torch.Tensor:
     """opacity(t) = sigmoid(o) * exp(-((t - mu_t) / s_t)^2)  (METHOD.md 4D, temporal radial basis)."""
-    return torch.sigmoid(opacity_logits) * torch.exp(-((t - t_center) / t_scale) ** 2)
+    return torch.sigmoid(opacity_logits) * temporal_weight(t_center, t_scale, t)
 
 
 class SpacetimeModel(GaussianModel):
