@@ -191,6 +191,8 @@ JOB_CASES = [
     ({"prior_settings": {"pseudo_every": 0}}, "pseudo_every must be at least 1"),
     ({"prior_settings": {"ring_weight": -0.5}}, "ring_weight must be at least 0"),
     ({"prior_settings": {"ring_fraction": 1.5}}, "ring_fraction must be at most 1"),
+    ({"position_lr_scale": 0}, "position_lr_scale must be greater than 0"),
+    ({"position_lr_scale": "fast"}, "position_lr_scale must be a finite number"),
 ]
 
 
@@ -217,6 +219,12 @@ def test_integral_settings_are_converted(tmp_path):
     out = check_settings({"iters": 1e3, "seed": "7", "background": [0, 0, 1], "prior_settings": {"rounds": 2.0}})
     assert out["iters"] == 1000 and isinstance(out["iters"], int) and out["seed"] == 7
     assert out["background"] == (0.0, 0.0, 1.0) and out["prior_settings"]["rounds"] == 2
+    assert check_settings({"position_lr_scale": 3})["position_lr_scale"] == 3.0
+    from gsgs_engine.reconstruct import config_from_settings
+
+    assert config_from_settings({"position_lr_scale": 2.5}).position_lr_scale == 2.5
+    assert config_from_settings({"position_lr_scale": "auto"}).position_lr_scale is None  # the plan's choice
+    assert config_from_settings({}).position_lr_scale is None
 
 
 CLI_CASES = [
@@ -227,6 +235,7 @@ CLI_CASES = [
     (["--resolution-scale", "1e6"], "--resolution-scale must be at most 4"),
     (["--warmup-fraction", "5"], "--warmup-fraction must be at most 1"),
     (["--lambda-reg", "inf"], "--lambda-reg must be a finite number"),
+    (["--position-lr-scale", "-2"], "--position-lr-scale must be greater than 0"),
 ]
 
 

@@ -455,3 +455,27 @@ def test_overrides_from_a_command_line_typed_flags_win():
     assert overrides_from_args(args) == {"sh_degree": 2, "depth": "off"}
     with pytest.raises(GsgsError, match="unknown effect"):
         overrides_from_args(parser.parse_args(["--effects", "fog=on"]))
+
+
+def test_position_learning_rate_of_the_recipe_and_as_asked():
+    from gsgs_engine.effect_plan import POSITION_LR_SCALE
+
+    orbit = plan(make_scene(n_train=4))  # a sparse object orbit under --prior auto: the recipe's multiple
+    assert orbit["rig"].value == "object orbit"
+    assert orbit["position_lr"].enabled and orbit["position_lr"].value == POSITION_LR_SCALE > 1
+    assert "orbit" in orbit["position_lr"].reason and "position_lr" in orbit.format()
+    assert apply_effect_plan(orbit, TrainConfig(), AUTO)[0].position_lr_scale == POSITION_LR_SCALE
+    video = plan(make_scene(times=[0.0, 0.3, 0.6, 1.0]))
+    assert video["position_lr"].value == POSITION_LR_SCALE and "4D" in video["position_lr"].reason
+    front = plan(make_scene(n_train=4, forward=True))  # forward-facing: 3DGS's rate (measured lower there)
+    assert front["position_lr"].enabled is False and front["position_lr"].value == 1.0
+    assert apply_effect_plan(front, TrainConfig(), AUTO)[0].position_lr_scale == 1.0
+    assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["position_lr"].value == 1.0  # the baseline
+    assert plan(make_scene(n_train=24))["position_lr"].value == 1.0  # dense views: plain optimisation
+    asked = plan(make_scene(n_train=4, forward=True), position_lr_scale=2.5)  # the user's multiple wins everywhere
+    assert asked["position_lr"].value == 2.5 and asked["position_lr"].source == "user"
+    assert apply_effect_plan(asked, TrainConfig(position_lr_scale=2.5), AUTO)[0].position_lr_scale == 2.5
+    kept = plan(make_scene(n_train=4), position_lr_scale=1.0)
+    assert kept["position_lr"].value == 1.0 and kept["position_lr"].enabled is False and kept["position_lr"].source == "user"
+    with pytest.raises(GsgsError, match="--position-lr-scale"):
+        parse_overrides("position_lr=3")

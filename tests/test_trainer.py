@@ -431,6 +431,35 @@ def test_schedule_scales_with_iterations():
     assert math.isclose(position_lr(50, 100, 1.6e-4, 1.6e-6), 1.6e-5, rel_tol=1e-9)
 
 
+def test_position_lr_scale_multiplies_the_means_rate_at_every_step_and_one_is_3dgs():
+    from gsgs_engine import GsgsError
+    from gsgs_engine.train.schedule import position_lr
+    from gsgs_engine.train.trainer import TrainConfig, validate_config
+
+    seen = {}
+
+    def record(trainer, step):
+        seen.setdefault(trainer.config.position_lr_scale, []).append(
+            next(g["lr"] for g in trainer.optimizer.param_groups if g["name"] == "means"))
+
+    finals = {}
+    for scale in (None, 1.0, 3.0):
+        trainer = make_trainer(iters=4, densify=False, position_lr_scale=scale)
+        trainer.setup()
+        trainer.add_technique(Probe(after=record))
+        trainer.train()
+        finals[scale] = trainer.model.means.detach().clone()
+        lr = trainer.config.lr
+        expected = [(scale or 1.0) * position_lr(s, 4, lr.position_init * trainer.extent,
+                                                 lr.position_final * trainer.extent) for s in range(1, 5)]
+        assert seen[scale] == pytest.approx(expected, rel=1e-12)
+    assert torch.equal(finals[None], finals[1.0])  # unset is 3DGS's schedule, to the bit
+    assert not torch.equal(finals[3.0], finals[1.0])
+    for bad in (0.0, -1.0, float("nan"), float("inf"), 101.0):
+        with pytest.raises(GsgsError, match="position-lr-scale"):
+            validate_config(TrainConfig(position_lr_scale=bad))
+
+
 def test_photometric_terms_weighting():
     from gsgs_engine.train.losses import photometric_terms, total_loss
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import os
 import subprocess
 import sys
@@ -67,6 +68,9 @@ def add_arguments(parser) -> None:
                              "unchanged; evaluated on the scene's)")
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
+    parser.add_argument("--position-lr-scale", type=float, default=1.0,
+                        help="every model's position learning rate as a multiple of 3DGS's schedule (default "
+                             "%(default)s; gsgs train --prior auto uses 3 on a video: effect_plan.POSITION_LR_SCALE)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
 
@@ -170,7 +174,7 @@ def bench_rig(scene, choice: str = "auto", log=print) -> dict:
 def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, init: str = "random",
                       init_points: int = 2000, sh_degree: int = 0, backend: str = "auto", seed: int = 0,
                       log=print, lpips: bool = True, rig: str = "auto", techniques: str | None = None,
-                      models=VARIANTS, background: str = "fixed") -> dict:
+                      models=VARIANTS, background: str = "fixed", position_lr_scale: float = 1.0) -> dict:
     """Train and evaluate the three variants on a loaded dynamic scene (splits from the camera protocol)."""
     from gsgs_engine.bench.dynamic_region import region_masks
     from gsgs_engine import GsgsError
@@ -201,7 +205,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     def config(n_iters: int) -> TrainConfig:
         return TrainConfig(iters=n_iters, sh_degree=sh_degree, backend=backend, seed=seed, init=init,
                            random_init_points=init_points, checkpoint_every=0, novel_view_near=near,
-                           random_background=background == "opaque")
+                           random_background=background == "opaque", position_lr_scale=position_lr_scale)
 
     t0 = time.perf_counter()
     _warm_up(backend, scene.test[0].camera)
@@ -209,6 +213,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     region_fn, region_what = region_masks(scene.test)
     log(f"[bench dynamic] dynamic region: {region_what}")
     results: dict = {"region": region_what, "rig": layout, "novel_view_near": near, "background": background,
+                     "position_lr_scale": position_lr_scale,
                      "background_colour": [round(float(c), 4) for c in scene.background]}
     if "4d" in models:
         trainer = SpacetimeTrainer(scene, config(iters), log=log)
@@ -366,6 +371,8 @@ def run(args) -> int:
         raise GsgsError("--iters and --per-frame-iters must be at least 1")
     if args.frames < 1:
         raise GsgsError(f"--frames must be at least 1 (got {args.frames})")
+    if not (math.isfinite(args.position_lr_scale) and 0 < args.position_lr_scale <= 100):
+        raise GsgsError(f"--position-lr-scale must be in (0, 100] (got {args.position_lr_scale}); 1 is 3DGS's schedule")
     rendered = None
     if args.data is not None:
         data = Path(args.data)
@@ -391,7 +398,7 @@ def run(args) -> int:
         results = run_dynamic_bench(scene, run_dir, args.iters, args.per_frame_iters, args.init, args.init_points,
                                     args.sh_degree, args.backend, args.seed, log=log, lpips=not args.no_lpips,
                                     rig=args.rig, techniques=args.techniques, models=models,
-                                    background=args.background)
+                                    background=args.background, position_lr_scale=args.position_lr_scale)
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),

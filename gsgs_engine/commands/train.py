@@ -61,6 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--coarse-scale of their size (default %(default)s: off)")
     parser.add_argument("--coarse-scale", type=float, default=0.5,
                         help="coarse-to-fine: render scale of those first steps (default %(default)s)")
+    parser.add_argument("--position-lr-scale", type=float, default=None,
+                        help="the Gaussians' position learning rate as a multiple of 3DGS's schedule (default: "
+                             "the effect plan's; --prior auto raises it on object orbits and videos, else 1)")
     parser.add_argument("--random-background", action="store_true",
                         help="a random background colour each step: RGBA scenes composite the target on the same "
                              "(alpha learned), RGB scenes keep the photo (every pixel learned opaque; "
@@ -120,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
     config = TrainConfig(iters=args.iters, sh_degree=3 if args.sh_degree is None else args.sh_degree,
                          backend=args.backend, seed=args.seed,
                          checkpoint_every=args.checkpoint_every, random_background=args.random_background,
-                         init=args.init, coarse_fraction=args.coarse_fraction, coarse_scale=args.coarse_scale)
+                         init=args.init, coarse_fraction=args.coarse_fraction, coarse_scale=args.coarse_scale,
+                         position_lr_scale=args.position_lr_scale)
     if args.mvs_size is not None:
         config.mvs_max_side = args.mvs_size
     config.mvs_flow = args.mvs_flow

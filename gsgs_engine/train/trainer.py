@@ -65,6 +65,9 @@ class TrainConfig:
     # cameras, 1000 steps: the near plane in training too gave 14.89 / 14.17 dB plain / auto, against
     # 15.04 / 15.34 with it at evaluation only)
     novel_view_near: float = DEFAULT_NEAR
+    # the means' learning rate as a multiple of 3DGS's schedule (LearningRates.position_*, decayed over the run);
+    # None: the effect plan's choice (gsgs_engine.effect_plan: the recipe of the rig), 1.0 without a plan
+    position_lr_scale: float | None = None
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
 
@@ -306,10 +309,17 @@ class Trainer:
         self._config_as_set_up = TrainConfig.from_dict(self.config.to_dict())
         self.phase_seconds["init"] += time.perf_counter() - t0
 
+    def _position_lr(self, step: int) -> float:
+        """The means' learning rate at `step`: 3DGS's log-linear decay x the scene extent x position_lr_scale."""
+        cfg = self.config
+        scale = 1.0 if cfg.position_lr_scale is None else float(cfg.position_lr_scale)
+        return scale * position_lr(step, cfg.iters, cfg.lr.position_init * self.extent,
+                                   cfg.lr.position_final * self.extent)
+
     def _make_optimizer(self) -> torch.optim.Optimizer:
         lr, p = self.config.lr, self.model.params
         groups = [
-            {"params": [p["means"]], "lr": lr.position_init * self.extent, "name": "means"},
+            {"params": [p["means"]], "lr": self._position_lr(0), "name": "means"},
             {"params": [p["sh_dc"]], "lr": lr.sh_dc, "name": "sh_dc"},
             {"params": [p["sh_rest"]], "lr": lr.sh_rest, "name": "sh_rest"},
             {"params": [p["opacity_logits"]], "lr": lr.opacity, "name": "opacity_logits"},
@@ -423,8 +433,7 @@ class Trainer:
         step = self.step + 1  # 1-based like 3DGS's iteration counter
         for group in self.optimizer.param_groups:
             if group["name"] == "means":
-                group["lr"] = position_lr(step, cfg.iters, cfg.lr.position_init * self.extent,
-                                          cfg.lr.position_final * self.extent)
+                group["lr"] = self._position_lr(step)
         if sched.is_sh_raise_step(step):
             model.raise_sh_degree()
 
@@ -633,6 +642,8 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"--mvs-size must be at least 16 pixels (got {cfg.mvs_max_side})")
     if cfg.mvs_flow not in ("off", "dis", "deepflow"):
         raise GsgsError(f"--mvs-flow must be off, dis or deepflow (got {cfg.mvs_flow!r})")
+    if cfg.position_lr_scale is not None and not (np.isfinite(cfg.position_lr_scale) and 0 < cfg.position_lr_scale <= 100):
+        raise GsgsError(f"--position-lr-scale must be in (0, 100] (got {cfg.position_lr_scale}); 1 is 3DGS's schedule")
     if not (np.isfinite(cfg.novel_view_near) and cfg.novel_view_near > 0):
         raise GsgsError(f"novel_view_near must be a positive distance (got {cfg.novel_view_near})")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
