@@ -88,7 +88,8 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
     args = Namespace(cameras="2,3", out=str(out), data=str(pano), ring=10, frames=3, size=64, samples=4, iters=6,
                      per_frame_iters=3, init="mvs", init_points=60, sh_degree=0, backend="auto", seed=0,
                      threads=0, resolution_scale=1.0, no_lpips=True, rig="auto",
-                     techniques="exposure", models="4d,static_all,static_per_frame", background="mean")
+                     techniques="exposure", models="4d,static_all,static_per_frame", background="mean",
+                     position_lr_scale=3.0)
     assert run(args) == 0
     every = json.loads((out / "results.json").read_text())["cameras"]
     assert sorted(every) == ["2", "3"]
@@ -102,6 +103,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         assert results["novel_view_near"] == (results["rig"]["near"] or DEFAULT_NEAR)
         # --background mean: the training photos' mean colour, not the loader's white
         assert results["background"] == "mean" and not np.allclose(results["background_colour"], 1.0)
+        assert results["position_lr_scale"] == 3.0  # every model's, recorded
         for name in ("4d", "static_all", "static_per_frame"):
             r = results[name]
             assert len(r["per_view"]) == 6  # two test cameras x three frames
@@ -143,7 +145,7 @@ def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path)
     args = Namespace(cameras="2", out=str(tmp_path / "one"), data=str(pano), ring=10, frames=3, size=64, samples=4,
                      iters=4, per_frame_iters=2, init="random", init_points=60, sh_degree=0, backend="auto", seed=0,
                      threads=0, resolution_scale=1.0, no_lpips=True, rig="orbit", techniques=None, models="4d",
-                     background="opaque")
+                     background="opaque", position_lr_scale=1.0)
     assert run(args) == 0
     results = json.loads((tmp_path / "one" / "results.json").read_text())
     assert "4d" in results and "static_all" not in results and "static_per_frame" not in results
@@ -151,3 +153,6 @@ def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path)
     assert results["background"] == results["setup"]["background"] == "opaque"
     with pytest.raises(GsgsError, match="--models"):
         run(Namespace(**{**vars(args), "models": "4d,nope"}))
+    for bad in (0.0, float("nan"), 1000.0):
+        with pytest.raises(GsgsError, match="--position-lr-scale"):
+            run(Namespace(**{**vars(args), "position_lr_scale": bad}))

@@ -351,5 +351,8 @@ def test_prior_auto_on_a_video_runs_the_4d_recipe(clip, tmp_path):
     assert metrics["init"]["method"] == "mvs" and "per frame" in metrics["init"]["reason"]
     # a clip of a few cameras: the few-camera 4D recipe (effect_plan.AUTO_4D_FEW_TECHNIQUES)
     assert [t["name"] for t in metrics["plan"]["techniques"]] == ["dropout", "opacity_decay", "exposure"]
+    from gsgs_engine.effect_plan import POSITION_LR_SCALE  # and the means moved faster than 3DGS's rate
+
+    assert metrics["plan"]["effects"]["position_lr"]["value"] == POSITION_LR_SCALE > 1
     exposure = metrics["techniques"]["exposure"]
     assert exposure["cameras"] == len({k for k in exposure["per_camera"]}) >= 2  # one correction per camera
