@@ -475,6 +475,13 @@ def test_position_learning_rate_of_the_recipe_and_as_asked():
     asked = plan(make_scene(n_train=4, forward=True), position_lr_scale=2.5)  # the user's multiple wins everywhere
     assert asked["position_lr"].value == 2.5 and asked["position_lr"].source == "user"
     assert apply_effect_plan(asked, TrainConfig(position_lr_scale=2.5), AUTO)[0].position_lr_scale == 2.5
+    from gsgs_engine.effect_plan import AUTO_LONG_STEPS  # a long schedule moves the means far enough already
+
+    for scene in (make_scene(n_train=4), make_scene(times=[0.0, 0.3, 0.6, 1.0])):
+        long_run = plan(scene, iters=AUTO_LONG_STEPS)["position_lr"]
+        assert long_run.value == 1.0 and long_run.enabled is False and str(AUTO_LONG_STEPS) in long_run.reason
+        assert plan(scene, iters=AUTO_LONG_STEPS - 1)["position_lr"].value == POSITION_LR_SCALE
+    assert plan(make_scene(n_train=4), iters=AUTO_LONG_STEPS, position_lr_scale=3.0)["position_lr"].value == 3.0
     kept = plan(make_scene(n_train=4), position_lr_scale=1.0)
     assert kept["position_lr"].value == 1.0 and kept["position_lr"].enabled is False and kept["position_lr"].source == "user"
     with pytest.raises(GsgsError, match="--position-lr-scale"):
