@@ -23,7 +23,8 @@ So balanced and best use `prior auto` (dense captures get none of it: the plan s
 The steps of `--prior auto` on the protocols over seeds 0-2 (2-core CPU; docs/speed.md, "Accuracy against steps"):
 NeRF-synthetic 26.12 -> 26.99 dB and LLFF 20.65 -> 20.86 from 1000 to 3000 steps, LPIPS 0.02-0.04 better; lego at
 10000 steps (seed 0) 25.37 against 25.30 at 3000, for 3.3x the time. So balanced = 1000 and best = 3000 stand, and no
-preset trains longer.
+preset trains longer. Since session 14 the 1000-step orbit recipe moves the means at 3x 3DGS's rate (NeRF-synthetic
+26.57 dB over seeds 0-2; effect_plan.POSITION_LR_SCALE); 3000 steps, where x3 measured flat, still buy +0.6 dB there.
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,
