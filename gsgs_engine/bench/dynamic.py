@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import math
 import os
 import subprocess
 import sys
@@ -371,8 +370,9 @@ def run(args) -> int:
         raise GsgsError("--iters and --per-frame-iters must be at least 1")
     if args.frames < 1:
         raise GsgsError(f"--frames must be at least 1 (got {args.frames})")
-    if not (math.isfinite(args.position_lr_scale) and 0 < args.position_lr_scale <= 100):
-        raise GsgsError(f"--position-lr-scale must be in (0, 100] (got {args.position_lr_scale}); 1 is 3DGS's schedule")
+    from gsgs_engine.train.trainer import TrainConfig, validate_config
+
+    validate_config(TrainConfig(position_lr_scale=args.position_lr_scale))  # the trainer's own rule for the rate
     rendered = None
     if args.data is not None:
         data = Path(args.data)
