@@ -139,17 +139,15 @@ def position_lr_effect(train_config, effects: dict, requested: str, sparse: bool
     if asked is not None:
         return Effect("position_lr", float(asked) != 1.0, float(asked), "--position-lr-scale / job setting "
                       "\"position_lr_scale\"", "user")
-    if requested == "auto" and int(train_config.iters) >= AUTO_LONG_STEPS and (
-            effects["time"].enabled or (sparse and effects["rig"].value == "object orbit")):
+    video = effects["time"].enabled
+    if requested != "auto" or not (video or (sparse and effects["rig"].value == "object orbit")):
+        return Effect("position_lr", False, 1.0, "3DGS's position learning rate, its schedule scaled to the run")
+    if int(train_config.iters) >= AUTO_LONG_STEPS:
         return Effect("position_lr", False, 1.0, f"{int(train_config.iters)} steps (>= {AUTO_LONG_STEPS}): 3DGS's "
                       "position learning rate; " + POSITION_LR_LONG_MEASURED)
-    if requested == "auto" and effects["time"].enabled:
-        return Effect("position_lr", True, POSITION_LR_SCALE, f"4D under --prior auto: 3DGS's position learning "
-                      f"rate x{POSITION_LR_SCALE:g}; " + POSITION_LR_MEASURED)
-    if requested == "auto" and sparse and effects["rig"].value == "object orbit":
-        return Effect("position_lr", True, POSITION_LR_SCALE, f"sparse object orbit under --prior auto: 3DGS's "
-                      f"position learning rate x{POSITION_LR_SCALE:g}; " + POSITION_LR_MEASURED)
-    return Effect("position_lr", False, 1.0, "3DGS's position learning rate, its schedule scaled to the run")
+    where = "4D" if video else "sparse object orbit"
+    return Effect("position_lr", True, POSITION_LR_SCALE, f"{where} under --prior auto: 3DGS's position learning "
+                  f"rate x{POSITION_LR_SCALE:g}; " + POSITION_LR_MEASURED)
 
 
 def cameras_per_frame(views) -> int:
