@@ -108,12 +108,10 @@ GSGS_INLINE void hsum8(const vf* a, float* out) {
   std::memcpy(out, &r, sizeof r);
 }
 
-// exp(x) for the alpha test, x clamped to [-87, 0] (NaN -> -87): Cephes' expf polynomial with
-// round-to-nearest range reduction, ~1 ulp, exp(0) == 1 exactly. libm's expf cannot be vectorised
-// without -ffast-math.
-GSGS_INLINE vf exp_nonpositive(vf x) {
-  x = select(x >= -87.0f, x, splat(-87.0f));
-  x = select(x < 0.0f, x, splat(0.0f));
+// exp(x) for the alpha test, for x already clamped to [-87, 0] (exp_nonpositive in tile_bodies.h: NaN -> -87):
+// Cephes' expf polynomial with round-to-nearest range reduction, ~1 ulp, exp(0) == 1 exactly. libm's expf cannot
+// be vectorised without -ffast-math.
+GSGS_INLINE vf exp_clamped(vf x) {
   const vf t = x * 1.44269504088896341f;
   const vf n = (t + 12582912.0f) - 12582912.0f;  // round(t): 1.5 * 2^23 shifts out the fraction
   vf r = x - n * 0.693359375f;
@@ -129,10 +127,21 @@ GSGS_INLINE vf exp_nonpositive(vf x) {
   return y * (vf)(e << 23);
 }
 
-// Gaussian exponent at offsets (dx, dy) from the mean; forward and backward share it so both take
-// the same skip decisions bit for bit.
-GSGS_INLINE vf gaussian_power(float A, float B, float C, vf dx, float dy) {
-  return -0.5f * (A * dx * dx + C * dy * dy) - B * dx * dy;
+// The Gaussian exponent -(A dx^2 + C dy^2) / 2 - B dx dy, with what depends on the 8-pixel column alone (dx per
+// lane, A dx, B dx) made once per Gaussian and column and the row's C dy^2 once per row: the same expression tree
+// as evaluating it whole (so the same rounding, and exactly 0 along a needle where A = C = -B), three vector
+// operations a step instead of six. Forward and backward share these functions, so both take the same skip
+// decisions bit for bit.
+struct ColumnTerms {
+  vf dx, a_dx, b_dx;
+};
+GSGS_INLINE ColumnTerms column_terms(const Splat& s, vf px) {
+  const vf dx = s.mx - px;
+  return ColumnTerms{dx, s.A * dx, s.B * dx};
+}
+GSGS_INLINE float row_term(const Splat& s, float dy) { return s.C * dy * dy; }
+GSGS_INLINE vf gaussian_power(const ColumnTerms& col, float dy, float c_dy2) {
+  return -0.5f * (col.a_dx * col.dx + c_dy2) - col.b_dx * dy;
 }
 
 // The exponent below which no lane can reach alpha >= 1/255: o * exp(power) < 1/255 for power < ln(1 / (255 o)).
@@ -308,6 +317,8 @@ GSGS_INLINE void reach(const Splat& s, int px0, int py0, int cols, int rows, int
 #define GSGS_TILE_ARGS_B const Splat *splats, const int32_t *ranks, const int32_t *slots, int count, int px0, \
     int py0, int width, int height, const float *background, const float *final_T, const int32_t *last_in, \
     const float *grad_color, const float *grad_depth, const float *grad_alpha, bool with_depth, float *entry_grad
+#define GSGS_TILE_PASS_B splats, ranks, slots, count, px0, py0, width, height, background, final_T, last_in, \
+    grad_color, grad_depth, grad_alpha, with_depth, entry_grad
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 #define GSGS_TILE_AVX 1
 #pragma GCC push_options

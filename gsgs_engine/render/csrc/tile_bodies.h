@@ -13,6 +13,27 @@ GSGS_INLINE bool any_lane(vi mask) {
 #endif
 }
 
+// exp of a Gaussian exponent: clamped to [-87, 0] (NaN -> -87; the same values as selects, which the portable
+// variant keeps: maxps returns its second operand for a NaN first one), then exp_clamped.
+GSGS_INLINE vf exp_nonpositive(vf x) {
+#if GSGS_TILE_AVX
+  x = (vf)_mm256_min_ps(_mm256_max_ps((__m256)x, _mm256_set1_ps(-87.0f)), _mm256_setzero_ps());
+#else
+  x = select(x >= -87.0f, x, splat(-87.0f));
+  x = select(x < 0.0f, x, splat(0.0f));
+#endif
+  return exp_clamped(x);
+}
+
+// alpha = min(0.99, o G) (NaN -> 0.99, as the select the portable variant keeps: minps returns its second operand).
+GSGS_INLINE vf clamp_alpha(vf oG) {
+#if GSGS_TILE_AVX
+  return (vf)_mm256_min_ps((__m256)oG, _mm256_set1_ps(kMaxAlpha));
+#else
+  return select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+#endif
+}
+
 // A tile composites a small share of the depth-ordered splat records, so consecutive entries lie far apart in
 // memory and each record is a cache miss unless it was asked for early: fetch the one kFetchAhead entries on,
 // both cache lines its 52 bytes may span. (Profiled on the rasterizer benchmark's 50k small splats: a quarter of
@@ -51,16 +72,18 @@ void forward_tile(GSGS_TILE_ARGS_F) {
     reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
     vi stopped = splat_i(0);
     const vi contributor = splat_i(j + 1);
+    ColumnTerms col[kVecPerRow];
+    for (int h = v_lo; h <= v_hi; ++h) col[h] = column_terms(s, px[h]);
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      const float row_part = row_term(s, dy);
       for (int h = v_lo; h <= v_hi; ++h) {
         const int v = row * kVecPerRow + h;
         if (!any_lane(active[v])) continue;  // these 8 pixels are finished
-        const vf dx = s.mx - px[h];
-        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        const vf power = gaussian_power(col[h], dy, row_part);
         if (!any_lane(power >= s.power_floor)) continue;  // no lane reaches alpha 1/255 (see power_floor)
         const vf oG = s.opacity * exp_nonpositive(power);
-        const vf alpha = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vf alpha = clamp_alpha(oG);
         const vi valid = active[v] & (power <= 0.0f) & (alpha >= kMinAlpha);
         const vf test_T = T[v] * (1.0f - alpha);
         const vi stop = valid & (test_T < kMinTransmittance);
@@ -104,7 +127,9 @@ void forward_tile(GSGS_TILE_ARGS_F) {
 //   C = sum_i c_i a_i T_i + T_N bg,  D = sum_i z_i a_i T_i,  A_out = 1 - T_N
 //   dC/da_i = T_i (c_i - S_i) - T_N bg / (1 - a_i), S_i = colour behind i (S_{i-1} = a_i c_i + (1-a_i) S_i)
 //   dA_out/da_i = T_N / (1 - a_i)
-void backward_tile(GSGS_TILE_ARGS_B) {
+template <bool kWithDepth>
+void backward_tile_body(GSGS_TILE_ARGS_B) {
+  (void)with_depth;  // kWithDepth: the depth terms compiled in or out, not tested per step
   vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
   vi last[kVecs];
   const int rows = std::min(kTile, height - py0);
@@ -157,18 +182,21 @@ void backward_tile(GSGS_TILE_ARGS_B) {
     for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
     bool touched = false;
     const vi position = splat_i(j);
+    ColumnTerms col[kVecPerRow];
+    for (int h = v_lo; h <= v_hi; ++h) col[h] = column_terms(s, px[h]);
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      const float row_part = row_term(s, dy);
       for (int h = v_lo; h <= v_hi; ++h) {
         const int v = row * kVecPerRow + h;
         const vi listed = position < last[v];  // j blended into these pixels' colour (if valid)
         if (!any_lane(listed)) continue;
-        const vf dx = s.mx - px[h];
-        const vf power = gaussian_power(s.A, s.B, s.C, dx, dy);
+        const vf dx = col[h].dx;
+        const vf power = gaussian_power(col[h], dy, row_part);
         if (!any_lane(listed & (power >= s.power_floor))) continue;  // no listed lane can reach alpha 1/255
         const vf G = exp_nonpositive(power);
         const vf oG = s.opacity * G;
-        const vf alpha_lane = select(oG < kMaxAlpha, oG, splat(kMaxAlpha));
+        const vf alpha_lane = clamp_alpha(oG);
         const vi valid = listed & (power <= 0.0f) & (alpha_lane >= kMinAlpha);
         if (!any_lane(valid)) continue;
         touched = true;
@@ -181,7 +209,7 @@ void backward_tile(GSGS_TILE_ARGS_B) {
         const vf w = alpha * T_before;
         const vf dr = s.r - Sr[v], dg = s.g - Sg[v], db = s.b - Sb[v];
         vf dot = gr[v] * dr + gg[v] * dg + gb[v] * db;
-        if (with_depth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
+        if (kWithDepth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
         const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
@@ -198,11 +226,11 @@ void backward_tile(GSGS_TILE_ARGS_B) {
         acc[6] += gg[v] * w;
         acc[7] += gb[v] * w;
         acc[8] += dL_doG * G;
-        if (with_depth) acc[9] += gz[v] * w;
+        if (kWithDepth) acc[9] += gz[v] * w;
         Sr[v] = select(valid, Sr[v] + alpha * dr, Sr[v]);  // S_{i-1} = a_i c_i + (1 - a_i) S_i
         Sg[v] = select(valid, Sg[v] + alpha * dg, Sg[v]);
         Sb[v] = select(valid, Sb[v] + alpha * db, Sb[v]);
-        if (with_depth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
+        if (kWithDepth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
         T[v] = T_before;
       }
     }
@@ -225,3 +253,12 @@ void backward_tile(GSGS_TILE_ARGS_B) {
   }
 }
 
+// The backward with or without the depth terms (a training step has no depth loss), each compiled on its own so
+// the per-step loop holds no test of it and the registers go to the terms it has.
+void backward_tile(GSGS_TILE_ARGS_B) {
+  if (with_depth) {
+    backward_tile_body<true>(GSGS_TILE_PASS_B);
+  } else {
+    backward_tile_body<false>(GSGS_TILE_PASS_B);
+  }
+}
