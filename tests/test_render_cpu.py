@@ -106,6 +106,8 @@ SCENES = [
     dict(seed=2, n=80, width=48, height=33, equal_depth_groups=3),  # many exact depth ties
     dict(seed=3, n=120, width=40, height=40, opaque_fraction=0.6, spread=10.0),  # heavy overlap, T stops
     dict(seed=4, n=30, width=21, height=50, spread=2.0),  # tall, small Gaussians, many off-image
+    # long rotated ellipses over many tiles: binning culls their rectangles row by row to the tiles they reach
+    dict(seed=5, n=40, width=96, height=80, spread=25.0),
 ]
 
 

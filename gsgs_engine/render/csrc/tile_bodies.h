@@ -22,7 +22,13 @@ GSGS_INLINE vf exp_nonpositive(vf x) {
   x = select(x >= -87.0f, x, splat(-87.0f));
   x = select(x < 0.0f, x, splat(0.0f));
 #endif
+#if GSGS_TILE_AVX512
+  vf n;
+  const vf y = exp_mantissa(x, &n);
+  return (vf)_mm256_scalef_ps((__m256)y, (__m256)n);  // y 2^n in one instruction, rounded as the product
+#else
   return exp_clamped(x);
+#endif
 }
 
 // alpha = min(0.99, o G) (NaN -> 0.99, as the select the portable variant keeps: minps returns its second operand).
