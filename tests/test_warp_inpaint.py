@@ -4,7 +4,8 @@ import numpy as np
 import torch
 
 from gsgs_engine.cameras import Camera, look_at
-from gsgs_engine.priors.warp_inpaint import TrainingPhoto, fill_empty_depth, inpaint, surface_depth, warp_inpaint
+from gsgs_engine.priors.warp_inpaint import (TrainingPhoto, fill_empty_depth, inpaint, inpaint_all, surface_depth,
+                                             warp_inpaint, warp_photos)
 
 
 def _cam(eye, w=48, h=40, f=50.0):
@@ -83,6 +84,27 @@ def test_fill_empty_inpaints_what_the_render_leaves_empty():
     # filled from the content beside it, not left at the render's white
     assert (image[:, -6:] - 1.0).abs().mean() > 0.1
     assert (image[:, -6:] - img[:, -7:-6]).abs().mean() < (1.0 - img[:, -7:-6]).abs().mean()
+
+
+def test_a_round_inpainted_on_threads_equals_each_view_alone():
+    g = torch.Generator().manual_seed(3)
+    images = [torch.rand(40, 56, 3, generator=g) for _ in range(5)]
+    holes = [torch.rand(40, 56, generator=g) < f for f in (0.0, 0.1, 0.3, 0.6, 0.9)]
+    alone = [inpaint(img, h).clamp(0, 1) for img, h in zip(images, holes)]
+    for workers in (1, 2, 4):
+        together = inpaint_all(images, holes, workers=workers)
+        assert all(torch.equal(a, b) for a, b in zip(alone, together)), workers
+    # warp_inpaint is warp_photos then the inpainting of what it leaves
+    cam = _cam([0.0, 0.0, -4.0], w=32, h=24)
+    img, depth = _plane_view(cam, _texture)
+    alpha = torch.ones_like(depth)
+    alpha[:, -6:] = 0.0
+    render = torch.ones_like(img)
+    photos = [TrainingPhoto(cam, img, depth * 3.0)]  # occluded everywhere: every covered pixel is a hole
+    whole, stats = warp_inpaint(cam, render, depth * alpha, alpha, photos, fill_empty=True)
+    warped, to_fill, stats2 = warp_photos(cam, render, depth * alpha, alpha, photos, fill_empty=True)
+    assert stats == stats2 and bool(to_fill.all())
+    assert torch.equal(whole, inpaint_all([warped], [to_fill], workers=2)[0])
 
 
 def test_fill_empty_depth_extends_the_surface_and_keeps_known_depth():
