@@ -403,7 +403,7 @@ def _install_counters(monkeypatch):
     import gsgs_engine.sfm as sfm
 
     calls: dict = {}
-    _count(monkeypatch, warp_inpaint, "warp_inpaint", calls, "generator")
+    _count(monkeypatch, warp_inpaint, "warp_photos", calls, "generator")  # the generator, once a pseudo view
     _count(monkeypatch, poses, "interpolated_pseudo_views", calls, "pseudo_poses")
     _count(monkeypatch, sparse_depth.SparseDepthSource, "estimate", calls, "depth_source")
     monkeypatch.setattr(sfm, "triangulate_with_known_poses",

@@ -104,13 +104,18 @@ def warp_inpaint(camera: Camera, render: torch.Tensor, depth: torch.Tensor, alph
     return inpaint(image, holes).clamp(0, 1), stats
 
 
-def inpaint_all(images: list[torch.Tensor], holes: list[torch.Tensor], workers: int) -> list[torch.Tensor]:
-    """inpaint() of every (image, holes) pair, clamped to [0, 1], on up to `workers` threads: OpenCV's inpainting
-    runs without Python's lock, and each image is filled exactly as alone (a prior round's 16 ring views spend most
-    of their generation time here: a forward-facing round 3-5 s on the 2-core machine)."""
-    if workers <= 1 or len(images) <= 1:
-        return [inpaint(img, h).clamp(0, 1) for img, h in zip(images, holes)]
+def on_threads(fn, items: list, workers: int) -> list:
+    """[fn(item) for item in items] on up to `workers` threads, in order. For OpenCV's inpainting, which runs
+    without Python's lock: each result is the same as computed alone."""
+    if workers <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
     from concurrent.futures import ThreadPoolExecutor
 
-    with ThreadPoolExecutor(max_workers=min(workers, len(images))) as pool:
-        return list(pool.map(lambda pair: inpaint(*pair).clamp(0, 1), zip(images, holes)))
+    with ThreadPoolExecutor(max_workers=min(workers, len(items))) as pool:
+        return list(pool.map(fn, items))
+
+
+def inpaint_all(images: list[torch.Tensor], holes: list[torch.Tensor], workers: int) -> list[torch.Tensor]:
+    """inpaint() of every (image, holes) pair, clamped to [0, 1], on up to `workers` threads (a prior round's 16
+    ring views spend most of their generation time here: a forward-facing round 3-5 s on the 2-core machine)."""
+    return on_threads(lambda pair: inpaint(*pair).clamp(0, 1), list(zip(images, holes)), workers)

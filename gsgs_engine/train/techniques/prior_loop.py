@@ -280,18 +280,21 @@ class PriorLoop(Technique):
         1000 steps) seeded 5.5k into a model of tens of thousands: neither bound changes it."""
         from gsgs_engine.gaussians import inverse_sigmoid, num_sh_coeffs, rgb_to_sh_dc
         from gsgs_engine.priors.warp import unproject
-        from gsgs_engine.priors.warp_inpaint import fill_empty_depth, surface_depth
+        from gsgs_engine.priors.warp_inpaint import fill_empty_depth, on_threads, surface_depth
         from gsgs_engine.train.densify import append_gaussians
 
         tr = self.trainer
         model = tr.model
-        points, colours, sizes = [], [], []
+        views = []  # (pseudo view, its target, its surface depth) where part of it, not all, is empty
         for p, out, img in zip(self.pseudo, renders, images):
             z = surface_depth(out.depth, out.alpha)
             empty = z <= 0
-            if not bool(empty.any()) or bool(empty.all()):
-                continue
-            zf = fill_empty_depth(z)
+            if bool(empty.any()) and not bool(empty.all()):
+                views.append((p, img, z))
+        filled = on_threads(fill_empty_depth, [z for _, _, z in views], workers=torch.get_num_threads())
+        points, colours, sizes = [], [], []
+        for (p, img, z), zf in zip(views, filled):
+            empty = z <= 0
             step = seed_stride(p.camera, stride)
             grid = torch.zeros_like(empty)
             grid[step // 2::step, step // 2::step] = True
@@ -359,13 +362,18 @@ class PriorLoop(Technique):
     def _save_round(self, k: int, images, renders, stats) -> None:
         from gsgs_engine.priors.depth_reg import inverse_depth
 
+        from gsgs_engine.priors.warp_inpaint import on_threads
+
         folder = self.out_dir / "pseudo" / f"round_{k}"
+        pictures = []  # (path, the image it shows): written on the process's threads (PNG encoding drops the GIL)
         for j, (p, img, out) in enumerate(zip(self.pseudo, images, renders)):
-            _save_png(folder / f"{p.name}.png", _to_u8(img))
-            _save_png(folder / f"{p.name}_render.png", _to_u8(out.color))
-            _save_png(folder / f"{p.name}_depth.png", _depth_png(inverse_depth(out.depth, out.alpha)))
+            pictures.append((folder / f"{p.name}.png", _to_u8(img)))
+            pictures.append((folder / f"{p.name}_render.png", _to_u8(out.color)))
+            pictures.append((folder / f"{p.name}_depth.png", _depth_png(inverse_depth(out.depth, out.alpha))))
             if self.pseudo_depth:
-                _save_png(folder / f"{p.name}_depth_estimate.png", _depth_png(*self.pseudo_depth[j]))
+                pictures.append((folder / f"{p.name}_depth_estimate.png", _depth_png(*self.pseudo_depth[j])))
+        folder.mkdir(parents=True, exist_ok=True)
+        on_threads(lambda item: _save_png(*item), pictures, workers=torch.get_num_threads())
         from gsgs_engine.io.world_scale import camera_dicts_to_world
 
         cams = camera_dicts_to_world([{"name": p.name, "nearest_train": p.nearest_train, "source": p.source,
