@@ -105,8 +105,8 @@ def warp_inpaint(camera: Camera, render: torch.Tensor, depth: torch.Tensor, alph
 
 
 def on_threads(fn, items: list, workers: int) -> list:
-    """[fn(item) for item in items] on up to `workers` threads, in order. For OpenCV's inpainting, which runs
-    without Python's lock: each result is the same as computed alone."""
+    """[fn(item) for item in items] on up to `workers` threads, in order. For OpenCV's work (inpainting, PNG
+    encoding), which runs without Python's lock; each result is the same as computed alone."""
     if workers <= 1 or len(items) <= 1:
         return [fn(item) for item in items]
     from concurrent.futures import ThreadPoolExecutor

@@ -7,7 +7,9 @@
 //
 // Layout of the work:
 //   * visible Gaussians are sorted once by (depth, index) with a stable radix sort; tile lists then hold
-//     sorted ranks, so binning in rank order yields depth-sorted tile lists without a per-tile sort;
+//     sorted ranks, so binning in rank order yields depth-sorted tile lists without a per-tile sort; a
+//     Gaussian is listed only in the tiles its alpha >= 1/255 ellipse reaches (box, then row spans), which
+//     leaves out only tiles it adds nothing to;
 //   * each tile is rendered Gaussian-major: for every Gaussian, the 8-pixel row segments its alpha
 //     ellipse can reach are updated with branch-free 8-lane vector code (a polynomial exp, no libm);
 //   * the backward pass walks each tile's list back to front, reconstructing T per pixel as 3DGS's CUDA
@@ -578,7 +580,8 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   };
   int64_t* const span_offset = reusable_buffer<int64_t, 0>(n_vis + 1);
   span_offset[0] = 0;
-  for (int64_t s = 0; s < n_vis; ++s) span_offset[s + 1] = span_offset[s] + (culled(rects[s]) ? rects[s].y1 - rects[s].y0 + 1 : 0);
+  for (int64_t s = 0; s < n_vis; ++s)
+    span_offset[s + 1] = span_offset[s] + (culled(rects[s]) ? rects[s].y1 - rects[s].y0 + 1 : 0);
   RowSpan* const spans = reusable_buffer<RowSpan, 0>(span_offset[n_vis]);
   int32_t* const entries_of = reusable_buffer<int32_t, 0>(n_vis);
   at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {

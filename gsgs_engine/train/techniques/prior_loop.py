@@ -361,7 +361,6 @@ class PriorLoop(Technique):
 
     def _save_round(self, k: int, images, renders, stats) -> None:
         from gsgs_engine.priors.depth_reg import inverse_depth
-
         from gsgs_engine.priors.warp_inpaint import on_threads
 
         folder = self.out_dir / "pseudo" / f"round_{k}"
@@ -372,7 +371,6 @@ class PriorLoop(Technique):
             pictures.append((folder / f"{p.name}_depth.png", _depth_png(inverse_depth(out.depth, out.alpha))))
             if self.pseudo_depth:
                 pictures.append((folder / f"{p.name}_depth_estimate.png", _depth_png(*self.pseudo_depth[j])))
-        folder.mkdir(parents=True, exist_ok=True)
         on_threads(lambda item: _save_png(*item), pictures, workers=torch.get_num_threads())
         from gsgs_engine.io.world_scale import camera_dicts_to_world
 
