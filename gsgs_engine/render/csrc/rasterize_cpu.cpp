@@ -284,7 +284,7 @@ GSGS_INLINE void clip_to_alpha_extent(const Splat& s, TileRect* rect) {
 // <=> q = A dx^2 + 2 B dx dy + C dy^2 <= K); the concave max is taken at dy = B sqrt(K / (C det)) clamped to the
 // band, the convex min at its mirror. K is widened by 0.1 % and the span by a pixel against the kernel's float
 // rounding, so a tile left out can never pass the kernel's own floor test: dropping it changes no result. On trained
-// models a quarter of the rectangles' entries (trained flower; lego: 8 %) reached no pixel (the ellipse misses the corner).
+// models (3x3-tile rectangles and up culled) this drops 22 % of flower's entries and 3 % of lego's.
 // Conics that are not positive definite, and unbounded extents, keep the whole row.
 struct EllipseRows {
   bool bounded;  // a positive definite conic with a finite extent; otherwise every row keeps the rectangle's tiles
