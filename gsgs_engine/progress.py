@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from typing import Callable, TextIO
 
 
 def format_seconds(s: float | None) -> str:
@@ -23,14 +23,16 @@ def format_seconds(s: float | None) -> str:
 
 class Progress:
     def __init__(self, phase: str, total: int, job=None, stream: TextIO | None = None, start_step: int = 0,
-                 emit_interval_s: float = 0.5, bar_width: int = 24):
+                 emit_interval_s: float = 0.5, bar_width: int = 24, clock: Callable[[], float] = time.monotonic):
         self.phase = phase
         self.total = max(int(total), 0)
         self.job = job
         self.stream = sys.stderr if stream is None else stream
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.start_step = int(start_step)
-        self.start_time = time.monotonic()
+        self._clock = clock
+        self.start_time = clock()
+        self._first_done: tuple[int, float] | None = None  # (step, time) of the first update after the start
         self.emit_interval_s = emit_interval_s
         self.bar_width = bar_width
         self._last_emit = -1e9
@@ -40,14 +42,21 @@ class Progress:
         self._step = int(start_step)
 
     def eta(self, step: int) -> float | None:
-        done = step - self.start_step
-        if done <= 0:
+        """Seconds left at `step`, at the pace since the first update after the start; None before a second one.
+
+        The first step carries one-off work that later steps do not: a kernel compiled on first use (gsplat's CUDA
+        build took 81 s of an H200 run's first step, the steps after it ~0.02 s: counted in, the estimate read 22 hours
+        after that step and 12 minutes at step 100 of 1000, with 20 s left), the first allocations, the caches.
+        """
+        if self._first_done is None or step <= self._first_done[0]:
             return None
-        rate = (time.monotonic() - self.start_time) / done
+        rate = (self._clock() - self._first_done[1]) / (step - self._first_done[0])
         return rate * max(self.total - step, 0)
 
     def update(self, step: int, losses: dict | None = None, message: str = "", force: bool = False, **extra) -> None:
-        now = time.monotonic()
+        now = self._clock()
+        if self._first_done is None and step > self.start_step:
+            self._first_done = (int(step), now)
         self._step = int(step)
         eta = self.eta(step)
         last = step >= self.total
@@ -79,7 +88,7 @@ class Progress:
             loss = f" loss {main:.4f}" if isinstance(main, (int, float)) else ""
         tail = f" {message}" if message else ""
         return (f"{self.phase} [{bar}] {step}/{self.total} {100 * frac:5.1f}%{loss} "
-                f"elapsed {format_seconds(time.monotonic() - self.start_time)} eta {format_seconds(eta)}{tail}")
+                f"elapsed {format_seconds(self._clock() - self.start_time)} eta {format_seconds(eta)}{tail}")
 
     def message(self, text: str) -> None:
         """A one-off line (keeps the bar intact on a terminal) and a progress event."""

@@ -178,6 +178,21 @@ def test_training_runs_on_the_resolved_device(device, tmp_path):
 
 @needs_cuda
 @pytest.mark.gpu
+def test_cuda_trainer_loads_gsplats_kernels_before_training(tmp_path):
+    """gsplat's first-use build runs in the trainer's set-up (its "init" clock, a log line with its seconds), so the
+    first training step is an ordinary one."""
+    from gsgs_engine.render import cuda_backend
+    from gsgs_engine.train.trainer import Trainer
+
+    assert cuda_backend.load_kernels(log=lambda m: None) >= 0.0
+    lines: list[str] = []
+    trainer = Trainer(rgba_scene(n_train=2, n_test=1), config("cuda", iters=5), log=lines.append)
+    assert any(m.startswith("gsplat: CUDA kernels ready in ") for m in lines), lines
+    assert trainer.phase_seconds["init"] > 0.0
+
+
+@needs_cuda
+@pytest.mark.gpu
 def test_cpu_checkpoint_resumes_on_cuda(tmp_path):
     from gsgs_engine.train.trainer import Trainer
 

@@ -224,6 +224,16 @@ class Trainer:
         self.schedule = Schedule.scaled(config.iters)
         # Every training tensor (model, Adam state, targets, statistics) lives on this device.
         self.device, self.device_description = resolve_device(config.backend)
+        t0 = time.perf_counter()
+        # a kernel's first-use build (gsplat's CUDA JIT, our C++ CPU kernel) belongs to the set-up, not to step 1
+        if self.device.type == "cuda":
+            from gsgs_engine.render import cuda_backend
+
+            cuda_backend.load_kernels(self.log)
+        elif config.backend != "reference":
+            from gsgs_engine.render import cpu_backend
+
+            cpu_backend.available()  # builds or loads it once per process; a failure is reported at the first render
         self.background = torch.as_tensor(np.asarray(scene.background, dtype=np.float32)).to(self.device)
         self.techniques: list[Technique] = []
         self.last_step_renders: list = []  # (render, camera) of the last step's supervised renders
@@ -242,7 +252,6 @@ class Trainer:
         self.backend_used: str | None = None
         self.opacity_resets = 0
 
-        t0 = time.perf_counter()
         self.extent = self._extent()
         self.size_extent = self.extent  # set from the initial points in setup()
         self._targets, self._alphas = self._load_targets()
