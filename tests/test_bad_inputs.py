@@ -354,6 +354,30 @@ def test_a_run_that_skips_many_steps_stops_naming_the_cause(scene, tmp_path):
     assert not (tmp_path / "out" / "point_cloud.ply").exists() and not (tmp_path / "out" / "metrics.json").exists()
 
 
+@pytest.mark.parametrize("bad, finite", [(None, True), (float("nan"), False), (float("inf"), False),
+                                          (float("-inf"), False), ("inf-inf", False), ("overflow", True)])
+def test_gradient_check_finds_every_non_finite_element_and_only_those(bad, finite):
+    """The step's gradient check (one sum a tensor, element by element where a sum is not finite): NaN, Inf, -Inf
+    and Inf next to -Inf are caught wherever they sit; finite values whose sum overflows float32 are not."""
+    import torch
+
+    from gsgs_engine.train.nan_guard import grads_finite
+
+    params = [torch.zeros(1000, 3, requires_grad=True), torch.zeros(1000, 1, requires_grad=True),
+              torch.zeros(5, requires_grad=True)]
+    params[0].grad = torch.randn(1000, 3)
+    params[1].grad = torch.randn(1000, 1)  # params[2] has no gradient (None)
+    g = params[1].grad
+    if bad == "inf-inf":
+        g[3, 0], g[900, 0] = float("inf"), float("-inf")
+    elif bad == "overflow":
+        g[:, 0] = 3e38  # every element finite, the float32 sum is Inf
+        assert not torch.isfinite(g.sum())
+    elif bad is not None:
+        g[777, 0] = bad
+    assert grads_finite(params) is finite
+
+
 # -- 4. a run folder belongs to one run -----------------------------------------------------------------
 def test_run_folder_belongs_to_one_run(scene, tmp_path, capsys):
     out = tmp_path / "run"

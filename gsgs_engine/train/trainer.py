@@ -27,7 +27,7 @@ from gsgs_engine.render.project import DEFAULT_NEAR
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.densify import DensifyConfig, DensifyStats, densify_and_prune, reset_opacity
 from gsgs_engine.train.losses import photometric_terms, total_loss
-from gsgs_engine.train.nan_guard import check_skipped, nonfinite_cause
+from gsgs_engine.train.nan_guard import check_skipped, grads_finite, nonfinite_cause
 from gsgs_engine.train.technique import StepContext, Technique
 from gsgs_engine.train.schedule import LearningRates, Schedule, position_lr
 
@@ -474,7 +474,7 @@ class Trainer:
         ok = bool(torch.isfinite(loss))
         if ok:
             loss.backward()
-            ok = all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in model.params.values())
+            ok = grads_finite(model.params.values())
         t2 = time.perf_counter()
         self.phase_seconds["backward"] += t2 - t1
         if not ok:
