@@ -361,7 +361,7 @@ def test_gradient_check_finds_every_non_finite_element_and_only_those(bad, finit
     and Inf next to -Inf are caught wherever they sit; finite values whose sum overflows float32 are not."""
     import torch
 
-    from gsgs_engine.train.nan_guard import grads_finite
+    from gsgs_engine.train.nan_guard import all_finite, grads_finite
 
     params = [torch.zeros(1000, 3, requires_grad=True), torch.zeros(1000, 1, requires_grad=True),
               torch.zeros(5, requires_grad=True)]
@@ -376,6 +376,7 @@ def test_gradient_check_finds_every_non_finite_element_and_only_those(bad, finit
     elif bad is not None:
         g[777, 0] = bad
     assert grads_finite(params) is finite
+    assert all_finite(params[1].grad) is finite
 
 
 # -- 4. a run folder belongs to one run -----------------------------------------------------------------

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from gsgs_engine.gaussians import PARAM_NAMES, GaussianModel, inverse_sigmoid, quat_to_rotmat
+from gsgs_engine.train.nan_guard import all_finite
 
 ADAM_STATE_KEYS = ("exp_avg", "exp_avg_sq")
 
@@ -48,7 +49,7 @@ class DensifyStats:
         g = means2d_grad.detach()[:, :2]
         norms = torch.hypot(g[:, 0] * (width / 2.0), g[:, 1] * (height / 2.0))
         norms = torch.where(visible, norms, torch.zeros_like(norms))
-        if not bool(torch.isfinite(norms).all()):
+        if not all_finite(norms):
             return  # never let a bad gradient steer densification
         self.grad_accum += norms
         self.denom += visible.to(self.denom.dtype)
