@@ -36,6 +36,9 @@ def available() -> bool:
     return unavailable_reason() == ""
 
 
+_kernels_loaded = False
+
+
 def load_kernels(log=print) -> float:
     """Load gsplat's compiled CUDA kernels now (-> seconds taken), so that a training run does it before its clock,
     its progress bar and its first step start.
@@ -43,11 +46,15 @@ def load_kernels(log=print) -> float:
     gsplat compiles its kernels on first use on a machine (a JIT build with the CUDA toolkit's nvcc: 58 s on an H200
     with 16 cores, 72-82 s on an H100) and caches them; later processes load the cache in about a second. A build that
     fails (no nvcc, a toolkit that does not match torch's CUDA) stops here with the fix, not at the first step.
+    Once a process: later calls return 0.0 at once, saying nothing.
     """
     import time
 
     from gsgs_engine import GsgsError
 
+    global _kernels_loaded
+    if _kernels_loaded:  # once a process: a bench builds many trainers
+        return 0.0
     t0 = time.perf_counter()
     log("gsplat: loading its CUDA kernels (the first use on a machine compiles them: about 1-2 minutes)")
     try:
@@ -61,6 +68,7 @@ def load_kernels(log=print) -> float:
                         "Fix: install the CUDA toolkit that matches torch's CUDA version, or a gsplat wheel with "
                         "prebuilt kernels, or train with --backend cpu")
     seconds = time.perf_counter() - t0
+    _kernels_loaded = True
     log(f"gsplat: CUDA kernels ready in {seconds:.1f} s")
     return seconds
 
