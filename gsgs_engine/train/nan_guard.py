@@ -28,21 +28,18 @@ def allowed_skips(total_steps: int) -> int:
 
 
 def all_finite(t: torch.Tensor) -> bool:
-    """`bool(torch.isfinite(t).all())` at the cost of one sum where it holds (see `grads_finite`)."""
+    """`bool(torch.isfinite(t).all())` at the cost of one sum where it holds.
+
+    A NaN or an Inf element makes the sum NaN or Inf, so a finite sum settles it (one vectorised pass: ~0.08 ms for
+    the five gradients of 64k Gaussians against ~1 ms for `isfinite(g).all()`). A non-finite sum can also come from
+    huge finite elements overflowing: that case is checked element by element.
+    """
     return bool(torch.isfinite(t.sum())) or bool(torch.isfinite(t).all())
 
 
 def grads_finite(params) -> bool:
-    """True when every parameter's gradient (None counts as finite) holds no NaN or Inf.
-
-    One sum per tensor first (a single vectorised pass, ~0.08 ms a step for 64k Gaussians against ~1 ms for
-    `isfinite(g).all()` over five tensors): a NaN or an Inf element makes the sum NaN or Inf, so a finite sum settles
-    it. A non-finite sum can also come from huge finite elements overflowing: that case is checked element by element.
-    """
-    grads = [p.grad for p in params if p.grad is not None]
-    if not grads or bool(torch.isfinite(torch.stack([g.sum() for g in grads])).all()):
-        return True
-    return all(bool(torch.isfinite(g).all()) for g in grads)
+    """True when every parameter's gradient (None counts as finite) holds no NaN or Inf."""
+    return all(p.grad is None or all_finite(p.grad) for p in params)
 
 
 def nonfinite_cause(terms: dict, loss, params: dict) -> str:
