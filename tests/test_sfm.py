@@ -219,6 +219,9 @@ def test_sfm_job_writes_cameras_points_and_progress(tmp_path):
     # The add-on's Info line shows this message: the count and the strategy that won.
     assert job.status()["state"] == "ok"
     assert job.status()["message"] == f"registered 3/3 views ({result.strategy})" and result.strategy
+    # A few photos match on one thread, the only way COLMAP's matcher repeats: one matcher in the log
+    # (with every thread, one per thread)
+    assert (job.result_dir / "colmap.log").read_text().count("Creating SIFT CPU feature matcher") == 1
 
 
 @pytest.mark.slow
