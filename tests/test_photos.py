@@ -263,6 +263,13 @@ def solves(tmp_path_factory):
     return out
 
 
+def _attempts(report: dict) -> str:
+    """The strategies an SfM report tried (registered photos, points, reprojection error): which stage differs
+    when a solve moves."""
+    return "; ".join(f"{a['strategy']} {a['registered']} photos {a['num_points']} points "
+                     f"{a['mean_reprojection_error'] or float('nan'):.5f} px" for a in report["attempts"])
+
+
 @pytest.mark.slow
 def test_rotated_and_heic_photos_give_the_cameras_of_the_upright_ones(solves):
     from gsgs_engine.bench.sfm_poses import pose_errors
@@ -271,7 +278,8 @@ def test_rotated_and_heic_photos_give_the_cameras_of_the_upright_ones(solves):
     assert reference.num_registered == 3
     ref = {c.name: c for c in reference.cameras}
     first = reference.cameras[0]
-    lines = [f"upright: {first.width}x{first.height} fx {first.fx:.1f} px, {seconds:.1f} s"]
+    lines = [f"upright: {first.width}x{first.height} fx {first.fx:.1f} px, {seconds:.1f} s, "
+             f"{_attempts(json.loads(reference.report_path.read_text()))}"]
     measured = {}
     for variant, (_, orientations, _) in STORAGE.items():
         job, result, seconds = solves[variant]
@@ -286,7 +294,7 @@ def test_rotated_and_heic_photos_give_the_cameras_of_the_upright_ones(solves):
         err = measured[variant] = pose_errors(cams, [ref[c.name] for c in cams])
         lines.append(f"{variant}: centres {err['max_centre_pct']:.3f}% of the rig, directions "
                      f"{err['max_rotation_deg']:.3f} deg, {cams[0].width}x{cams[0].height} fx {cams[0].fx:.1f} px, "
-                     f"{seconds:.1f} s")
+                     f"{seconds:.1f} s, {_attempts(report)}")
         for c in cams:  # landscape cameras for landscape photos
             assert c.width > c.height and c.width == ref[c.name].width, (variant, c.name)
     print("\n" + "\n".join(lines))
