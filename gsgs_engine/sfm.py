@@ -557,7 +557,7 @@ def _child_sfm(pycolmap, p: dict, emit) -> dict:
     # A few photos match on one thread: COLMAP's maintainers give the matcher as repeatable only
     # on one thread (colmap issue 727), and a 3-photo solve is sensitive: one CI run solved the
     # same pixels 1.2 degrees away from every other run (not reproduced in 20 runs since).
-    # One thread costs 0.7 -> 1.0 s on 3 photos; larger sets, less sensitive, keep every thread.
+    # One thread costs 0.7 -> 1.0 s on 3 photos; larger sets keep every thread (pairs grow with the square).
     matching.num_threads = 1 if len(names) <= ONE_THREAD_MATCHING else p["num_threads"]
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = sfm_strategies.SEED  # each pair's RANSAC seeded: any thread order

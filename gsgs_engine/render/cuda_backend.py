@@ -43,8 +43,8 @@ def load_kernels(log=print) -> float:
     """Load gsplat's compiled CUDA kernels now (-> seconds taken), so that a training run does it before its clock,
     its progress bar and its first step start.
 
-    gsplat compiles its kernels on first use on a machine (a JIT build with the CUDA toolkit's nvcc: 58 s on an H200
-    with 16 cores, 72-82 s on an H100) and caches them for later processes on the machine. A build that
+    gsplat compiles its kernels on first use on a machine (a JIT build with the CUDA toolkit's nvcc: 72-82 s on an
+    H100; the first H200 cell of docs/speed.md's session 17 spent 81 s in it) and caches them for later processes. A build that
     fails (no nvcc, a toolkit that does not match torch's CUDA) stops here with the fix, not at the first step.
     Once a process: later calls return 0.0 at once, saying nothing.
     """
