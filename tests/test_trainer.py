@@ -423,6 +423,9 @@ def test_schedule_scales_with_iterations():
     assert (short.densify_from, short.densify_until, short.densify_every, short.opacity_reset_every,
             short.sh_degree_every) == (50, 1_500, 25, 300, 100)
     assert short.is_densify_step(75) and not short.is_densify_step(50) and not short.is_densify_step(1525)
+    to_end = Schedule.scaled(1_000)
+    to_end.densify_until = 1_000  # as opacity decay sets it: densify to the end, but never at the last step
+    assert [s for s in range(951, 1_001) if to_end.is_densify_step(s)] == [975]
     assert [s for s in range(1, 30_001) if full.is_opacity_reset_step(s)] == [3000, 6000, 9000, 12000]  # as 3DGS
     tiny = Schedule.scaled(200)  # reset period 75 > densify_until - 75: no reset the prune cannot recover from
     assert not any(tiny.is_opacity_reset_step(s) for s in range(1, 201))
