@@ -11,7 +11,8 @@ periodic opacity reset, so `install` changes the trainer's schedule:
   one-off reset of white-background scenes at the start of densification (3DGS's, step 17 of
   1000) stays: it comes before the first decayed step, and the schedule has no switch for it
   that would not also move the start of densification;
-- densification runs to the end of training (`densify_until = iters`);
+- densification runs to the end of training (`densify_until = iters`; its last event is one interval
+  before the last step, never on it: Schedule.is_densify_step);
 - the world-size prune: the trainer starts it after the first opacity reset, so with no reset
   it never runs. That is the intended choice, as in the Binocular3DGS code (its size threshold
   is None with decay): a large Gaussian the views do not support loses its opacity through the
