@@ -336,12 +336,13 @@ def test_exposure_is_removed_before_measuring_spread():
     assert [identifiable_sh_degree(n) for n in (1, 3, 4, 8, 9, 15, 16, 100)] == [0, 0, 1, 1, 2, 2, 3, 3]
 
 
-def test_view_dependence_from_tracks_in_images():
-    rng = np.random.default_rng(1)
-    n_views, n_pts = 16, 40
-    size = 84  # a 7 x 7 grid of 12-px cells; each view puts every point in a different cell
-    flat = [np.zeros((size, size, 3), np.float32) for _ in range(n_views)]
-    shiny = [np.zeros((size, size, 3), np.float32) for _ in range(n_views)]
+def _patch_views(n_views: int, n_pts: int, shiny_points, seed: int = 1):
+    """Images of n_pts square patches seen by n_views views (each view puts every point in a different cell of a
+    7 x 7 grid) and their tracks: a point in `shiny_points` changes colour from view to view (noise 0.12), the others
+    keep it up to a per-view gain (exposure)."""
+    rng = np.random.default_rng(seed)
+    size = 84  # a 7 x 7 grid of 12-px cells
+    images = [np.zeros((size, size, 3), np.float32) for _ in range(n_views)]
     cells = [rng.permutation(49)[:n_pts] for _ in range(n_views)]
     tracks = []
     for p in range(n_pts):
@@ -350,22 +351,49 @@ def test_view_dependence_from_tracks_in_images():
         for v in range(n_views):
             y, x = divmod(int(cells[v][p]), 7)
             y, x = 12 * y + 6, 12 * x + 6
-            flat[v][y - 3:y + 4, x - 3:x + 4] = base * [1.0, 1.1, 0.9][v % 3]  # uniform patch, per-view gain
-            shiny[v][y - 3:y + 4, x - 3:x + 4] = np.clip(base + rng.normal(0, 0.12, 3), 0, 1)
+            shine = np.clip(base + rng.normal(0, 0.12, 3), 0, 1) if p in shiny_points else None
+            images[v][y - 3:y + 4, x - 3:x + 4] = base * [1.0, 1.1, 0.9][v % 3] if shine is None else shine
             track.append((v, x + 0.5, y + 0.5))
         tracks.append(np.array(track))
+    return images, tracks
+
+
+def _plan_on_patches(images, tracks, cams, prior=AUTO):
+    size = images[0].shape[0]
+    views = [View(camera=replace(c, width=size, height=size, cx=size / 2, cy=size / 2), image_path=None,
+                  loader=lambda img=img: img) for c, img in zip(cams, images)]
+    scene = Scene(views=views, splits={"train": list(range(len(views))), "test": []}, source="synthetic")
+    tri = SimpleNamespace(points=np.zeros((len(tracks), 3)), colors=np.zeros((len(tracks), 3)),
+                          errors=np.zeros(len(tracks)), tracks=tracks)
+    return plan_effects(scene, TrainConfig(init="points"), prior, triangulation=tri, log=lambda m: None)
+
+
+def test_view_dependence_from_tracks_in_images():
+    n_views, n_pts = 16, 40
+    flat, tracks = _patch_views(n_views, n_pts, shiny_points=())
+    shiny, shiny_tracks = _patch_views(n_views, n_pts, shiny_points=range(n_pts))
     assert measure_view_dependence(flat, tracks)["spread_median"] < 0.02
-    assert measure_view_dependence(shiny, tracks)["spread_median"] > 0.07
+    assert measure_view_dependence(shiny, shiny_tracks)["spread_median"] > 0.07
     # the plan reads the training images through the scene: shiny -> degree 3, flat -> 0 (16 views allow 3)
-    for images, expected in ((shiny, 3), (flat, 0)):
-        views = [View(camera=replace(c, width=size, height=size, cx=size / 2, cy=size / 2), image_path=None,
-                      loader=lambda img=img: img) for c, img in zip(ring(n_views), images)]
-        scene = Scene(views=views, splits={"train": list(range(n_views)), "test": []}, source="synthetic")
-        tri = SimpleNamespace(points=np.zeros((n_pts, 3)), colors=np.zeros((n_pts, 3)), errors=np.zeros(n_pts),
-                              tracks=tracks)
-        p = plan_effects(scene, TrainConfig(init="points"), AUTO, triangulation=tri, log=lambda m: None)
+    for images, trk, expected in ((shiny, shiny_tracks, 3), (flat, tracks, 0)):
+        p = _plan_on_patches(images, trk, ring(n_views))
         assert p["sh_degree"].value == expected and p["sh_degree"].source == "auto"
         assert p["sh_degree"].measured["points"] == n_pts
+
+
+def test_auto_on_an_orbit_gives_degree_1_when_a_tenth_of_the_points_shine():
+    # 6 of 40 points shine: the median point is diffuse (degree 0), the p90 is not
+    n_views, n_pts = 16, 40
+    images, tracks = _patch_views(n_views, n_pts, shiny_points=range(6))
+    m = measure_view_dependence(images, tracks)
+    assert m["spread_median"] < 0.02 <= m["spread_p90"]
+    orbit = _plan_on_patches(images, tracks, ring(n_views))
+    assert orbit["rig"].value == "object orbit"
+    assert orbit["sh_degree"].value == 1 and "p90" in orbit["sh_degree"].reason
+    # plain 3DGS and other rigs keep the median's degree
+    assert _plan_on_patches(images, tracks, ring(n_views), PriorConfig(prior="none"))["sh_degree"].value == 0
+    forward = _plan_on_patches(images, tracks, row(n_views))
+    assert forward["rig"].value == "forward-facing" and forward["sh_degree"].value == 0
 
 
 def test_sh_degree_is_capped_by_the_number_of_views_and_unmeasurable_falls_back():

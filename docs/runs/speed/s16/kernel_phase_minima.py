@@ -1,8 +1,8 @@
-# per-render kernel phase times (fwd+bwd of colour), min and median over N renders, 1 thread
+# per-render kernel phase times (fwd+bwd of colour), min and median over N renders, 1 thread (NT=k: k threads)
 import sys, json, torch, statistics
 sys.path.insert(0, sys.argv[1])
 from pathlib import Path
-torch.set_num_threads(1)
+import os; torch.set_num_threads(int(os.environ.get("NT", "1")))
 from gsgs_engine.allocator import keep_freed_memory; keep_freed_memory()
 from gsgs_engine.io.ply import read_gaussian_ply
 from gsgs_engine.gaussians import GaussianModel
