@@ -577,8 +577,8 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
             if (wanted == 0 and requested == "auto" and effects["rig"].value == "object orbit"
                     and high is not None and high >= SH_SPREAD[0]):
                 wanted = 1
-                why += (f"; --prior auto on an object orbit: a tenth of the points vary by >= {high:.3f} (p90) -> "
-                        f"degree 1 ({AUTO_ORBIT_SH_MEASURED})")
+                why += (f"; --prior auto on an object orbit: p90 spread {high:.3f} >= {SH_SPREAD[0]} (a tenth of the "
+                        f"points change colour across views) -> degree 1 ({AUTO_ORBIT_SH_MEASURED})")
             d = min(wanted, cap)
             if cap < wanted:
                 why += f"; {len(views)} views identify at most degree {cap}"
