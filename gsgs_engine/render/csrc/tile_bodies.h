@@ -133,16 +133,19 @@ void forward_tile(GSGS_TILE_ARGS_F) {
 //   C = sum_i c_i a_i T_i + T_N bg,  D = sum_i z_i a_i T_i,  A_out = 1 - T_N
 //   dC/da_i = T_i (c_i - S_i) - T_N bg / (1 - a_i), S_i = colour behind i (S_{i-1} = a_i c_i + (1-a_i) S_i)
 //   dA_out/da_i = T_N / (1 - a_i)
+// Only g . S_i enters (g the pixel's colour gradient, and its depth gradient with the depth: a 3- or 4-vector that
+// is constant over the list), so a pixel carries that one dot product GS instead of the colour sums S r, g, b (and
+// S z): GS_{i-1} = GS_i + a_i (g . c_i - GS_i). One state vector to load, blend and store a step, not three or four.
 template <bool kWithDepth>
 void backward_tile_body(GSGS_TILE_ARGS_B) {
   (void)with_depth;  // kWithDepth: the depth terms compiled in or out, not tested per step
-  vf T[kVecs], Sr[kVecs], Sg[kVecs], Sb[kVecs], Sz[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
+  vf T[kVecs], GS[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
   vi last[kVecs];
   const int rows = std::min(kTile, height - py0);
   const int cols = std::min(kTile, width - px0);
   for (int v = 0; v < kVecs; ++v) {
     T[v] = splat(1.0f);
-    Sr[v] = Sg[v] = Sb[v] = Sz[v] = splat(0.0f);
+    GS[v] = splat(0.0f);
     gr[v] = gg[v] = gb[v] = gz[v] = K[v] = splat(0.0f);
     last[v] = splat_i(0);  // pixels outside the image never take part
   }
@@ -207,15 +210,15 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
         if (!any_lane(valid)) continue;
         touched = true;
         // alpha 0 on the lanes j did not blend into: there T_before == T and w == 0 exactly, so T and the
-        // weights need no select (the colour sums S keep theirs: 0 * a non-finite colour would not be 0).
+        // weights need no select (GS keeps its value by a select: 0 * a non-finite colour would not be 0).
         const vf alpha = select(valid, alpha_lane, splat(0.0f));
         const vf one_minus = 1.0f - alpha;  // >= 0.01
         const vf inv_one_minus = 1.0f / one_minus;  // one division, used twice
         const vf T_before = T[v] * inv_one_minus;
         const vf w = alpha * T_before;
-        const vf dr = s.r - Sr[v], dg = s.g - Sg[v], db = s.b - Sb[v];
-        vf dot = gr[v] * dr + gg[v] * dg + gb[v] * db;
-        if (kWithDepth) dot += gz[v] * (s.depth - Sz[v]);  // no depth loss (training): skipped
+        vf gc = gr[v] * s.r + gg[v] * s.g + gb[v] * s.b;
+        if (kWithDepth) gc += gz[v] * s.depth;  // no depth loss (training): skipped
+        const vf dot = gc - GS[v];  // g . (c_i - S_i)
         const vf dL_dalpha = T_before * dot + K[v] * inv_one_minus;
         // alpha = min(0.99, o G): no gradient through the clamp (as autograd of the reference).
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
@@ -233,10 +236,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
         acc[7] += gb[v] * w;
         acc[8] += dL_doG * G;
         if (kWithDepth) acc[9] += gz[v] * w;
-        Sr[v] = select(valid, Sr[v] + alpha * dr, Sr[v]);  // S_{i-1} = a_i c_i + (1 - a_i) S_i
-        Sg[v] = select(valid, Sg[v] + alpha * dg, Sg[v]);
-        Sb[v] = select(valid, Sb[v] + alpha * db, Sb[v]);
-        if (kWithDepth) Sz[v] = select(valid, alpha * s.depth + one_minus * Sz[v], Sz[v]);
+        GS[v] = select(valid, GS[v] + alpha * dot, GS[v]);  // g . S_{i-1} = g . (a_i c_i + (1 - a_i) S_i)
         T[v] = T_before;
       }
     }
