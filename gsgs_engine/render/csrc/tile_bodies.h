@@ -196,6 +196,8 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
     for (int row = r_lo; row <= r_hi; ++row) {
       const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
       const float row_part = row_term(s, dy);
+      vf row_q = splat(0.0f), row_qx = splat(0.0f);  // this row's sums of q and q dx (dy is the row's)
+      bool row_touched = false;
       for (int h = v_lo; h <= v_hi; ++h) {
         const int v = row * kVecPerRow + h;
         const vi listed = position < last[v];  // j blended into these pixels' colour (if valid)
@@ -208,7 +210,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
         const vf alpha_lane = clamp_alpha(oG);
         const vi valid = listed & (power <= 0.0f) & (alpha_lane >= kMinAlpha);
         if (!any_lane(valid)) continue;
-        touched = true;
+        row_touched = true;
         // alpha 0 on the lanes j did not blend into: there T_before == T and w == 0 exactly, so T and the
         // weights need no select (GS keeps its value by a select: 0 * a non-finite colour would not be 0).
         const vf alpha = select(valid, alpha_lane, splat(0.0f));
@@ -224,20 +226,26 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
         // dL/dpower times the offsets' moments; the mean and conic gradients are formed from them per entry:
         // d power / d mean = -(A dx + B dy, B dx + C dy), d power / d conic = -(dx^2 / 2, dx dy, dy^2 / 2).
+        // The moments with dy (constant along a row) are taken once a row, from the row's sums of q and q dx.
         const vf q = dL_doG * oG;
-        const vf qx = q * dx, qy = q * dy;
-        acc[0] += qx;
-        acc[1] += qy;
+        const vf qx = q * dx;
+        row_q += q;
+        row_qx += qx;
         acc[2] += qx * dx;
-        acc[3] += qx * dy;
-        acc[4] += qy * dy;
         acc[5] += gr[v] * w;
         acc[6] += gg[v] * w;
         acc[7] += gb[v] * w;
-        acc[8] += dL_doG * G;
         if (kWithDepth) acc[9] += gz[v] * w;
         GS[v] = select(valid, GS[v] + alpha * dot, GS[v]);  // g . S_{i-1} = g . (a_i c_i + (1 - a_i) S_i)
         T[v] = T_before;
+      }
+      if (row_touched) {
+        touched = true;
+        acc[0] += row_qx;
+        acc[1] += row_q * dy;
+        acc[3] += row_qx * dy;
+        acc[4] += row_q * (dy * dy);
+        acc[8] += row_q;  // sum of q = o sum of dL/d(oG) G: divided by o below
       }
     }
     if (touched) {
@@ -251,7 +259,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
       record[5] = m[5];
       record[6] = m[6];
       record[7] = m[7];
-      record[8] = hsum(acc[8]);
+      record[8] = hsum(acc[8]) / s.opacity;  // dL/do = sum dL/d(oG) G = sum q / o (o >= 1/255 when listed)
       record[9] = hsum(acc[9]);
     } else {
       std::memset(record, 0, kGradFields * sizeof(float));
