@@ -381,15 +381,20 @@ def test_view_dependence_from_tracks_in_images():
         assert p["sh_degree"].measured["points"] == n_pts
 
 
-def test_auto_on_an_orbit_gives_degree_1_when_a_tenth_of_the_points_shine():
+@pytest.mark.parametrize("n_views", [16, 8, 3])
+def test_auto_on_an_orbit_gives_degree_2_when_a_tenth_of_the_points_shine(n_views):
     # 6 of 40 points shine: the median point is diffuse (degree 0), the p90 is not
-    n_views, n_pts = 16, 40
+    n_pts = 40
     images, tracks = _patch_views(n_views, n_pts, shiny_points=range(6))
     m = measure_view_dependence(images, tracks)
     assert m["spread_median"] < 0.02 <= m["spread_p90"]
     orbit = _plan_on_patches(images, tracks, ring(n_views))
     assert orbit["rig"].value == "object orbit"
-    assert orbit["sh_degree"].value == 1 and "p90" in orbit["sh_degree"].reason
+    # 8 views identify degree 1 on their own: the orbit recipe goes past that cap, and says so; 3 views identify
+    # degree 0 and stay there
+    assert orbit["sh_degree"].value == (0 if n_views == 3 else 2) and "p90" in orbit["sh_degree"].reason
+    assert orbit["sh_degree"].measured["identifiable_degree"] == {16: 3, 8: 1, 3: 0}[n_views]
+    assert ("past the bare views' cap of 1" in orbit["sh_degree"].reason) == (n_views == 8)
     # plain 3DGS and other rigs keep the median's degree
     assert _plan_on_patches(images, tracks, ring(n_views), PriorConfig(prior="none"))["sh_degree"].value == 0
     forward = _plan_on_patches(images, tracks, row(n_views))
