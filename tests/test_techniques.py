@@ -52,6 +52,48 @@ def test_dropout_is_unbiased_and_ramps():
     assert d.mean().item() == pytest.approx(o.mean().item(), rel=0.01)  # unbiased mean opacity
 
 
+def test_sh_band_dropout_truncates_whole_bands_from_the_top():
+    from gsgs_engine.train.techniques.dropout import dropout_sh_bands
+
+    n = 100_000
+    sh = torch.rand(n, 9, 3, generator=torch.Generator().manual_seed(1)) + 0.5  # degree 2, no zero coefficient
+    out = dropout_sh_bands(sh, 0.2, torch.Generator().manual_seed(2))
+    band1, band2 = (out[:, 1:4] != 0).all(dim=(1, 2)), (out[:, 4:9] != 0).all(dim=(1, 2))
+    assert torch.equal(out[:, 0], sh[:, 0])  # the base colour stays
+    assert ((out[:, 1:4] == 0).all(dim=(1, 2)) | band1).all() and ((out[:, 4:9] == 0).all(dim=(1, 2)) | band2).all()
+    assert not (band2 & ~band1).any()  # a dropped band drops the bands above it
+    assert band1.float().mean().item() == pytest.approx(0.8, abs=0.01)
+    assert band2.float().mean().item() == pytest.approx(0.64, abs=0.01)
+    assert torch.equal(out[band2], sh[band2])  # kept bands are not rescaled
+    # nothing to drop at degree 0 or rate 0; gradients flow to the kept coefficients only
+    assert torch.equal(dropout_sh_bands(sh[:, :1], 0.2, torch.Generator()), sh[:, :1])
+    assert dropout_sh_bands(sh, 0.0, torch.Generator()) is sh
+    leaf = sh[:50].clone().requires_grad_(True)
+    dropout_sh_bands(leaf, 0.5, torch.Generator().manual_seed(0)).sum().backward()
+    assert torch.isfinite(leaf.grad).all() and set(leaf.grad.unique().tolist()) <= {0.0, 1.0}
+
+
+def test_sh_band_dropout_option_changes_training_renders_only():
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    trainer = make_trainer(iters=100, sh_degree=1)
+    trainer.setup()
+    trainer.model.raise_sh_degree()
+    with torch.no_grad():
+        trainer.model.params["sh_rest"].normal_(0.0, 0.3, generator=torch.Generator().manual_seed(0))
+    (tech,) = make_techniques(parse_techniques("dropout:sh_rate=0.5:max_rate=0.0"))
+    trainer.add_technique(tech)
+    cam = trainer.train_views[0].camera
+    with torch.no_grad():
+        plain = trainer.render(cam).color.clone()
+        training = trainer.render_for_training(ctx_for(trainer, 50), cam).color
+    assert not torch.allclose(training, plain, atol=1e-4) and torch.isfinite(training).all()
+    assert torch.equal(trainer.render(cam).color, plain)
+    assert tech.report()["sh_rate"] == 0.5
+    with pytest.raises(GsgsError, match="sh_rate"):
+        make_techniques(parse_techniques("dropout:sh_rate=1.0"))
+
+
 def test_density_guided_dropout_drops_crowds_more_and_stays_unbiased():
     from gsgs_engine.train.techniques.dropout import guided_dropout_opacities, neighbourhood_density
 

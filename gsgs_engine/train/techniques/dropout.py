@@ -19,6 +19,11 @@ changes (they are checkpointed, so a resumed run uses the same ones).
 at the schedule's rate: a hole the size of a neighbourhood must be filled by Gaussians elsewhere,
 where dropping single Gaussians lets their neighbours cover for them.
 
+`sh_rate=P` (DropAnSH-GS's SH dropout, their P = 0.2) also truncates each Gaussian's view-dependent colour at
+random in every training render: band l >= 1 is dropped with probability P, and with it every band above, so the
+low bands must carry the colour on their own and the high bands only add to it (`dropout_sh_bands`). It is not
+ramped; evaluation renders use every band.
+
 The mask is drawn from the trainer's seeded CPU generator (`trainer.torch_gen`), which the
 trainer checkpoints: a run is deterministic and resumes bit-identically.
 """
@@ -49,6 +54,22 @@ def dropout_opacities(opacities: torch.Tensor, rate: float, generator: torch.Gen
         return opacities
     keep = (torch.rand(opacities.shape[0], generator=generator) >= rate).to(opacities.device, opacities.dtype)
     return opacities * keep.reshape(-1, *([1] * (opacities.ndim - 1))) / (1.0 - rate)
+
+
+def dropout_sh_bands(sh: torch.Tensor, rate: float, generator: torch.Generator) -> torch.Tensor:
+    """sh [N, (D+1)^2, 3] with each Gaussian's bands above a random degree zeroed: band l = 1..D is dropped with
+    probability `rate`, and a dropped band drops the bands above it (P(degree d kept) = (1 - rate)^d). Degree 0
+    (the base colour) is never dropped; no rescaling (colour is not a sum of independent parts)."""
+    n, k = sh.shape[0], sh.shape[1]
+    degree = int(round(k ** 0.5)) - 1
+    if rate <= 0.0 or degree < 1 or n == 0:
+        return sh
+    dropped = torch.rand(n, degree, generator=generator) < rate
+    # the highest degree kept: the first dropped band's index (bands 1..D at columns 0..D-1), else D
+    kept = torch.where(dropped.any(dim=1), dropped.to(torch.int8).argmax(dim=1), torch.full((n,), degree))
+    band = torch.arange(k).float().sqrt().floor().to(torch.int64)  # band of each coefficient
+    keep = (band[None, :] <= kept[:, None]).to(sh.device, sh.dtype)
+    return sh * keep[..., None]
 
 
 def percentiles(values: torch.Tensor) -> torch.Tensor:
@@ -140,14 +161,18 @@ def guided_dropout_opacities(opacities: torch.Tensor, rate: float, score: torch.
 class GaussianDropout(Technique):
     name = "dropout"
 
-    def __init__(self, max_rate: float = DEFAULT_MAX_RATE, guide: str = "uniform"):
+    def __init__(self, max_rate: float = DEFAULT_MAX_RATE, guide: str = "uniform", sh_rate: float = 0.0):
         if not 0.0 <= max_rate < 1.0:
             raise GsgsError(f"dropout: the final drop rate must be in [0, 1) (got {max_rate})")
+        if not 0.0 <= sh_rate < 1.0:
+            raise GsgsError(f"dropout: sh_rate (the SH band drop probability) must be in [0, 1) (got {sh_rate}; "
+                            "e.g. dropout:sh_rate=0.2)")
         if guide not in GUIDES:
             raise GsgsError(f"dropout: guide must be one of {', '.join(GUIDES)} (got {guide!r}; "
                             "e.g. dropout:guide=density)")
         self.max_rate = float(max_rate)
         self.guide = guide
+        self.sh_rate = float(sh_rate)
         self.trainer = None
         self.renders_dropped = 0
         self.last_rate = 0.0
@@ -175,6 +200,11 @@ class GaussianDropout(Technique):
         return cached[3]
 
     def render_inputs(self, ctx: StepContext, inputs: dict) -> dict:
+        if self.sh_rate > 0.0 and inputs.get("sh_degree", 0) > 0:
+            inputs = {**inputs, "sh": dropout_sh_bands(inputs["sh"], self.sh_rate, ctx.trainer.torch_gen)}
+        return self._opacity_inputs(ctx, inputs)
+
+    def _opacity_inputs(self, ctx: StepContext, inputs: dict) -> dict:
         tr = ctx.trainer
         rate = drop_rate(ctx.step, tr.config.iters, self.max_rate)
         self.last_rate = rate
@@ -206,6 +236,6 @@ class GaussianDropout(Technique):
         self._density_step = int(state.get("density_step", 0))
 
     def report(self) -> dict:
-        return {"max_rate": self.max_rate, "guide": self.guide,
+        return {"max_rate": self.max_rate, "guide": self.guide, "sh_rate": self.sh_rate,
                 "schedule": "linear 0 -> max_rate over the run, training renders only",
                 "renders_dropped": self.renders_dropped, "final_rate": round(self.last_rate, 4)}
