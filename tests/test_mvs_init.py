@@ -116,3 +116,25 @@ def test_train_and_export_starts_from_the_dense_model_with_init_mvs(tmp_path, mo
     assert sizes == [32]  # the sweep ran at the configured working size
     # the stereo and the initial Gaussians are part of the run's clock (the benchmarks' total seconds)
     assert metrics["phase_seconds"]["init"] > 0
+
+
+def test_box_mean_matches_the_separable_pools_and_keeps_a_nan_in_its_window():
+    import torch
+    import torch.nn.functional as F
+
+    from gsgs_engine.init.mvs import _box
+
+    def pools(x, window):
+        pad = window // 2
+        x = F.avg_pool2d(F.pad(x, (pad, pad, 0, 0), mode="replicate"), (1, window), stride=1)
+        return F.avg_pool2d(F.pad(x, (0, 0, pad, pad), mode="replicate"), (window, 1), stride=1)
+
+    x = torch.rand(3, 4, 37, 29, generator=torch.Generator().manual_seed(0))
+    for window in (3, 7, 41):  # 41: wider than the image, every pixel's window replicates the borders
+        assert torch.allclose(_box(x, window), pools(x, window), atol=2e-6, rtol=0)
+        assert torch.allclose(_box(x.double(), window), pools(x.double(), window), atol=1e-12, rtol=0)
+    bad = x.clone()
+    bad[0, 0, 10, 10] = float("nan")
+    out = _box(bad, 7)
+    assert int(torch.isnan(out).sum()) == 49  # only the 7 x 7 windows that hold it
+    assert torch.equal(torch.isnan(out), torch.isnan(pools(bad, 7)))

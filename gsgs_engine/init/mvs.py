@@ -129,10 +129,23 @@ def depth_range(camera: Camera, sparse_points: np.ndarray | None, bounds: tuple[
 
 
 def _box(x: torch.Tensor, window: int) -> torch.Tensor:
-    """Mean over a window x window neighbourhood (replicated borders), (B, C, H, W) -> same shape; separable."""
-    pad = window // 2
-    x = F.avg_pool2d(F.pad(x, (pad, pad, 0, 0), mode="replicate"), (1, window), stride=1)
-    return F.avg_pool2d(F.pad(x, (0, 0, pad, pad), mode="replicate"), (window, 1), stride=1)
+    """Mean over a window x window neighbourhood (replicated borders), (B, C, H, W) -> same shape.
+
+    OpenCV's running-sum box filter, plane by plane: the same means as two separable average pools up to float
+    rounding (~1e-7), at about a tenth of their time (the pools were two thirds of the sweep's time). A running sum
+    would carry a NaN or Inf past its window, so such input takes the pools, whose damage stays inside it.
+    """
+    if x.dtype not in (torch.float32, torch.float64) or not bool(torch.isfinite(x).all()):
+        pad = window // 2
+        x = F.avg_pool2d(F.pad(x, (pad, pad, 0, 0), mode="replicate"), (1, window), stride=1)
+        return F.avg_pool2d(F.pad(x, (0, 0, pad, pad), mode="replicate"), (window, 1), stride=1)
+    import cv2
+
+    planes = x.detach().contiguous().reshape(-1, x.shape[-2], x.shape[-1]).numpy()
+    out = np.empty_like(planes)
+    for i in range(planes.shape[0]):
+        cv2.boxFilter(planes[i], -1, (window, window), dst=out[i], normalize=True, borderType=cv2.BORDER_REPLICATE)
+    return torch.from_numpy(out).reshape(x.shape)
 
 
 def _pixel_grid(cam: Camera) -> torch.Tensor:
@@ -197,7 +210,8 @@ def estimate_depth(index: int, views: list[_WorkView], cfg: MVSConfig) -> tuple[
     inv = torch.linspace(1.0 / ref.far, 1.0 / ref.near, cfg.num_depths, dtype=torch.float64)
     costs = torch.stack([sweep_costs(ref, views[j], inv, cfg) for j in sources])  # (S, D, H, W)
     k = max(1, len(sources) // 2)
-    agg = costs.sort(dim=0).values[:k].mean(dim=0)  # occlusion-robust: the best half of the sources
+    # occlusion-robust: the best half of the sources (one of three: their minimum, without a sort)
+    agg = costs.min(dim=0).values if k == 1 else costs.sort(dim=0).values[:k].mean(dim=0)
     best_cost, idx = agg.min(dim=0)
     # sub-sample refinement: a parabola through the costs at idx-1, idx, idx+1
     lo = (idx - 1).clamp(0, cfg.num_depths - 1)
