@@ -25,7 +25,8 @@ TECHNIQUES = {
     "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
     "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian; "
                                  "guide=density drops crowded Gaussians near the camera more, after D2GS; "
-                                 "guide=anchor drops whole neighbourhoods, after DropAnSH-GS)"),
+                                 "guide=anchor drops whole neighbourhoods, after DropAnSH-GS; sh_rate=P drops "
+                                 "SH bands from the top, DropAnSH-GS's SH dropout)"),
     "binocular": (BinocularConsistency, "shifted-camera disparity-warp self-consistency (Binocular3DGS)"),
     "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
     "coregularisation": (CoRegularisation, "a second field trained alongside, co-regularised at pseudo views and "
