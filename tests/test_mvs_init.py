@@ -120,14 +120,8 @@ def test_train_and_export_starts_from_the_dense_model_with_init_mvs(tmp_path, mo
 
 def test_box_mean_matches_the_separable_pools_and_keeps_a_nan_in_its_window():
     import torch
-    import torch.nn.functional as F
 
-    from gsgs_engine.init.mvs import _box
-
-    def pools(x, window):
-        pad = window // 2
-        x = F.avg_pool2d(F.pad(x, (pad, pad, 0, 0), mode="replicate"), (1, window), stride=1)
-        return F.avg_pool2d(F.pad(x, (0, 0, pad, pad), mode="replicate"), (window, 1), stride=1)
+    from gsgs_engine.init.mvs import _box, _box_pools as pools
 
     x = torch.rand(3, 4, 37, 29, generator=torch.Generator().manual_seed(0))
     for window in (3, 7, 41):  # 41: wider than the image, every pixel's window replicates the borders

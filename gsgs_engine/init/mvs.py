@@ -128,6 +128,13 @@ def depth_range(camera: Camera, sparse_points: np.ndarray | None, bounds: tuple[
     return max(float(z.min()), far_z * 1e-2), far_z
 
 
+def _box_pools(x: torch.Tensor, window: int) -> torch.Tensor:
+    """`_box` as two separable average pools (replicated borders): a NaN or Inf stays inside its window."""
+    pad = window // 2
+    x = F.avg_pool2d(F.pad(x, (pad, pad, 0, 0), mode="replicate"), (1, window), stride=1)
+    return F.avg_pool2d(F.pad(x, (0, 0, pad, pad), mode="replicate"), (window, 1), stride=1)
+
+
 def _box(x: torch.Tensor, window: int) -> torch.Tensor:
     """Mean over a window x window neighbourhood (replicated borders), (B, C, H, W) -> same shape.
 
@@ -136,9 +143,7 @@ def _box(x: torch.Tensor, window: int) -> torch.Tensor:
     would carry a NaN or Inf past its window, so such input takes the pools, whose damage stays inside it.
     """
     if x.dtype not in (torch.float32, torch.float64) or not bool(torch.isfinite(x).all()):
-        pad = window // 2
-        x = F.avg_pool2d(F.pad(x, (pad, pad, 0, 0), mode="replicate"), (1, window), stride=1)
-        return F.avg_pool2d(F.pad(x, (0, 0, pad, pad), mode="replicate"), (window, 1), stride=1)
+        return _box_pools(x, window)
     import cv2
 
     planes = x.detach().contiguous().reshape(-1, x.shape[-2], x.shape[-1]).numpy()
