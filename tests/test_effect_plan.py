@@ -234,6 +234,7 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert few["rig"].value == "object orbit" and few["techniques"].value == list(AUTO_ORBIT_TECHNIQUES)
     assert few["techniques"].source == "auto" and "sparse" in few["techniques"].reason
     assert "every second step" in few["techniques"].reason
+    assert "dropout:max_rate=0.1" in AUTO_ORBIT_TECHNIQUES and "rate 0.1" in few["techniques"].reason  # session 23
     tc, pc = apply_effect_plan(few, TrainConfig(), AUTO)
     assert pc.techniques == list(AUTO_ORBIT_TECHNIQUES)
     # a long schedule (the best preset's 3000 steps): the shifted view at every step again, recorded as such
