@@ -472,13 +472,13 @@ def test_resume_with_guided_dropout_is_bit_identical(tmp_path, guide):
 # 100_000: above the count control's budget (1000 here), which then lowers the cap at install: the checkpoint must
 # record the settings as asked, or the resume is refused as "trained with other settings" (found on a cancelled
 # LLFF protocol cell)
-@pytest.mark.parametrize("max_gaussians", [None, 100_000])
-def test_resume_with_techniques_is_bit_identical(tmp_path, max_gaussians):
-    straight = _run(tmp_path / "a", max_gaussians=max_gaussians)
-    interrupted = _run(tmp_path / "b", until=20, max_gaussians=max_gaussians)
+@pytest.mark.parametrize("max_gaussians,techniques", [(None, ALL), (100_000, ALL), (None, "smoothing," + ALL)])
+def test_resume_with_techniques_is_bit_identical(tmp_path, max_gaussians, techniques):
+    straight = _run(tmp_path / "a", max_gaussians=max_gaussians, techniques=techniques)
+    interrupted = _run(tmp_path / "b", until=20, max_gaussians=max_gaussians, techniques=techniques)
     if max_gaussians is not None:
         assert interrupted.config.densify_config.max_gaussians < max_gaussians  # the budget took over
-    resumed = _run(tmp_path / "b", resume=True, max_gaussians=max_gaussians)
+    resumed = _run(tmp_path / "b", resume=True, max_gaussians=max_gaussians, techniques=techniques)
     assert resumed.step == straight.step == 40
     for name, p in straight.model.params.items():
         assert torch.equal(p, resumed.model.params[name]), name
@@ -538,3 +538,67 @@ def test_trainer_names_none_of_these_techniques():
     source = (REPO / "gsgs_engine/train/trainer.py").read_text()
     for name in ("dropout", "opacity_decay", "binocular", "count_control", "catalogue"):
         assert name not in source
+
+
+# -- the 3D smoothing filter --------------------------------------------------------------------
+def test_smoothing_keeps_large_gaussians_and_bounds_fine_ones():
+    from gsgs_engine.train.techniques.smoothing import smoothed
+
+    scales = torch.tensor([[1.0, 1.0, 1.0], [1e-3, 2.0, 2.0], [0.0, 0.0, 0.0]])
+    opac = torch.tensor([0.8, 0.8, 0.8])
+    var = torch.full((3,), 0.01)  # std 0.1
+    s, o = smoothed(scales, opac, var)
+    assert torch.allclose(s[0], torch.full((3,), (1.01) ** 0.5)) and o[0] == pytest.approx(0.8 / 1.01 ** 1.5, rel=1e-5)
+    assert s[1, 0] == pytest.approx(0.1, rel=1e-3), "a needle is as thick as the filter"
+    assert o[1] == pytest.approx(0.8 * 1e-3 / float(s[1, 0]) * (4 / 4.01), rel=1e-3), "its integral is kept"
+    assert torch.equal(o[2], torch.tensor(0.0)) and torch.all(s[2] > 0), "a vanished Gaussian stays finite, unseen"
+    unfiltered = smoothed(scales[:2], opac[:2], torch.zeros(2))
+    assert torch.equal(unfiltered[0], scales[:2]) and torch.equal(unfiltered[1], opac[:2]), "zero variance: no filter"
+
+
+def test_smoothing_gradients_are_finite_for_degenerate_scales():
+    from gsgs_engine.train.techniques.smoothing import smoothed
+
+    log_scales = torch.tensor([[-200.0, 0.0, 0.0], [-5.0, -5.0, -5.0], [3.0, 3.0, -80.0]], requires_grad=True)
+    logits = torch.zeros(3, requires_grad=True)
+    s, o = smoothed(torch.exp(log_scales), torch.sigmoid(logits), torch.full((3,), 1e-4))
+    (s.sum() + o.sum()).backward()
+    assert torch.isfinite(s).all() and torch.isfinite(o).all()
+    assert torch.isfinite(log_scales.grad).all() and torch.isfinite(logits.grad).all()
+
+
+def test_pixel_footprints_take_the_finest_camera_that_sees_a_centre():
+    from gsgs_engine.cameras import Camera
+    from gsgs_engine.train.techniques.smoothing import pixel_footprints
+
+    near = Camera(R=np.eye(3), t=np.array([0.0, 0.0, 2.0]), fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+    far = Camera(R=np.eye(3), t=np.array([0.0, 0.0, 8.0]), fx=200.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+    means = torch.tensor([[0.0, 0.0, 0.0],  # both see it: near 2/100, far 8/200
+                          [1.5, 0.0, 0.0],  # outside the near camera's widened image (u = 125 > 115), inside far's
+                          [0.0, 0.0, -9.0],  # behind both
+                          [float("nan"), 0.0, 0.0]])
+    f = pixel_footprints(means, [near, far])
+    assert f[0] == pytest.approx(0.02) and f[1] == pytest.approx(0.04)
+    assert f[2] == pytest.approx(0.04) and f[3] == pytest.approx(0.04), "unseen centres get the coarsest footprint"
+    assert torch.equal(pixel_footprints(means[2:3], [near]), torch.zeros(1)), "nothing seen: no filter"
+
+
+def test_smoothing_filters_training_renders_and_bakes_at_the_last_step():
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    trainer = make_trainer(iters=6)
+    trainer.setup()
+    (smoothing,) = [trainer.add_technique(t) for t in make_techniques(parse_techniques("smoothing:variance=50"))]
+    cam = trainer.train_views[0].camera
+    with torch.no_grad():
+        plain = trainer.render(cam).color.clone()
+        filtered = trainer.render_for_training(ctx_for(trainer, 1), cam).color
+    assert not torch.allclose(filtered, plain, atol=1e-4), "a training render sees the filtered Gaussians"
+    trainer.train()
+    assert smoothing.baked_at == 6
+    with torch.no_grad():
+        after = trainer.render(cam).color
+        training = trainer.render_for_training(ctx_for(trainer, 7), cam).color
+    assert torch.equal(after, training), "after baking the model is the filtered one: no second filter"
+    assert all(torch.isfinite(p).all() for p in trainer.model.params.values())
+    assert smoothing.report()["baked_at_step"] == 6

@@ -19,10 +19,13 @@ from gsgs_engine.train.techniques.count_control import GaussianBudget
 from gsgs_engine.train.techniques.dropout import GaussianDropout
 from gsgs_engine.train.techniques.exposure import ExposureCompensation
 from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
+from gsgs_engine.train.techniques.smoothing import SmoothingFilter
 
 #: name -> (class, one line for --help); the order is the order techniques are added in
 TECHNIQUES = {
     "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
+    "smoothing": (SmoothingFilter, "Mip-Splatting's 3D smoothing filter: no Gaussian finer than its finest training "
+                                   "pixel (variance=0.2 pixels^2), baked into the model at the last step"),
     "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian; "
                                  "guide=density drops crowded Gaussians near the camera more, after D2GS; "
                                  "guide=anchor drops whole neighbourhoods, after DropAnSH-GS; sh_rate=P drops "
