@@ -19,12 +19,22 @@ Issue 14 (docs/sparse_techniques.md, 1000 steps, CPU, one seed) then measured `-
 now runs on sparse static views (dense MVS init, the techniques count_control, dropout, binocular,
 opacity_decay, and warp-inpaint pseudo views on forward-facing rigs only): llff_flower 3 views at
 half resolution 16.84 -> 20.46 dB (251 s vs 306 s), lego_200 8 views 22.83 -> 25.36 dB (88 s vs 57 s).
-So balanced and best use `prior auto` (dense captures get none of it: the plan sees they are not sparse); fast stays plain 3DGS.
+So balanced and best use `prior auto` (dense captures get none of it: the plan sees they are not sparse); fast stayed
+plain 3DGS until session 24 (below).
 The steps of `--prior auto` on the protocols over seeds 0-2 (2-core CPU; docs/speed.md, "Accuracy against steps"):
 NeRF-synthetic 26.12 -> 26.99 dB and LLFF 20.65 -> 20.86 from 1000 to 3000 steps, LPIPS 0.02-0.04 better; lego at
 10000 steps (seed 0) 25.37 against 25.30 at 3000, for 3.3x the time. So balanced = 1000 and best = 3000 stand, and no
 preset trains longer. Since session 14 the 1000-step orbit recipe moves the means at 3x 3DGS's rate (NeRF-synthetic
 26.57 dB over seeds 0-2; effect_plan.POSITION_LR_SCALE); 3000 steps, where x3 measured flat, still buy +0.6 dB there.
+Session 24 measured fast's 300 steps both ways on the protocols, seeds 0-2, 2-core CPU (docs/speed.md, "Session 24"):
+plain 3DGS NeRF-synthetic 19.86 +- 0.17 dB, LLFF 16.13 +- 0.05; `--prior auto` 24.13 +- 0.04 and 18.84 +- 0.03 (SSIM
+and LPIPS better too), for about 2x the wait on the orbits and 3.3-4.4x on the forward-facing scenes. Auto's 300 steps
+also beat plain 3DGS's 1000 (23.60 / 16.08 dB) in less time, so plain 3DGS is off the front on sparse captures and
+fast = 300 steps of the same recipe as balanced. What each preset measured (the add-on's tooltips read these lines;
+"a scene" = plan, initialisation, training and prior, not the evaluation; protocol cells, seeds 0-2):
+  fast  auto, 300 steps: NeRF-synthetic 8 views 24.13 dB in 38-48 s a scene, LLFF 3 views 18.84 dB in 71-96 s (2-core CPU; plain 3DGS: 19.86 / 16.13 dB in 16-29 s)
+  balanced  auto, 1000 steps: NeRF-synthetic 8 views 26.97 dB in 101-128 s a scene, LLFF 3 views 20.65 dB in 162-195 s (2-core CPU)
+  best  auto, 3000 steps: NeRF-synthetic 8 views 27.55 dB in 279-554 s a scene (2-core CPU); LLFF 3 views 20.86 dB (another CPU)
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,
@@ -38,8 +48,9 @@ from dataclasses import replace
 from gsgs_engine import GsgsError
 
 PRESETS: dict[str, dict] = {
-    # plain 3DGS, short schedule: the first look (SH from the plan: its SfM is needed for init anyway)
-    "fast": {"iters": 300, "resolution_scale": 1.0, "max_side": 640, "prior": "none", "pseudo_views": 0, "rounds": 0,
+    # the recipe of --prior auto, short schedule: the first look (session 24: on sparse captures it beats plain 3DGS's
+    # 300 steps by 2-4.5 dB for 1.7-3.5x the wait, and plain 3DGS's 1000 steps in less time; SH from the plan)
+    "fast": {"iters": 300, "resolution_scale": 1.0, "max_side": 640, "prior": "auto", "pseudo_views": 16, "rounds": 3,
              "sh_degree": "auto", "backend": "auto"},
     # the default schedule: the knee of both measured fronts, with the weights-free sparse-view recipe of
     # --prior auto (the effect plan turns its parts on only where the views are sparse; issue 14)
@@ -79,11 +90,23 @@ def effect_overrides(p: dict) -> dict:
     return out
 
 
+def typed_dests(parser, argv: list[str]) -> set[str]:
+    """The argument dests whose flag appears in `argv` (`--prior none` or `--prior=none`), so that a typed value
+    equal to the parser's default still wins over a preset (`--preset fast --prior none` trains plain 3DGS)."""
+    typed = set()
+    for action in getattr(parser, "_actions", []):
+        for opt in action.option_strings:
+            if any(a == opt or a.startswith(opt + "=") for a in argv):
+                typed.add(action.dest)
+    return typed
+
+
 def apply_preset(target, parser=None, name: str | None = None):
     """Apply a preset to `gsgs train` arguments or to configs.
 
     - `apply_preset(args, parser)`: args.preset names the preset (None: nothing happens). Every
-      preset key whose argument the user left at the parser's default takes the preset value;
+      preset key whose argument the user left at the parser's default takes the preset value (a flag
+      named in args._argv, the command line `gsgs` parsed, counts as typed even at its default value);
       returns {dest: value} of what changed, and sets args.effects_overrides (a dict for
       gsgs_engine.effect_plan) when the command has no --effects value of its own.
     - `apply_preset((train_config, prior_config), name=NAME)`: returns new (TrainConfig,
@@ -105,6 +128,7 @@ def apply_preset(target, parser=None, name: str | None = None):
     if parser is None:
         raise GsgsError("apply_preset(args, parser): the parser is needed to tell typed flags from defaults")
     p = preset(name)
+    typed = typed_dests(parser, getattr(args, "_argv", None) or [])
     changed = {}
     for key, dest in ARG_DESTS.items():
         if not hasattr(args, dest):
@@ -112,7 +136,7 @@ def apply_preset(target, parser=None, name: str | None = None):
         value = p[key]
         if key == "sh_degree" and value == "auto":
             continue  # the effect plan decides; a typed --sh-degree still wins
-        if getattr(args, dest) == parser.get_default(dest) and getattr(args, dest) != value:
+        if dest not in typed and getattr(args, dest) == parser.get_default(dest) and getattr(args, dest) != value:
             setattr(args, dest, value)
             changed[dest] = value
     if getattr(args, "effects", None) in (None, ""):

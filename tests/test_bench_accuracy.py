@@ -239,11 +239,19 @@ def test_apply_preset_fills_defaults_and_keeps_typed_flags():
     assert args.effects_overrides == ({"pseudo_views": "off"} if b["prior"] == "none" else {})
     args = parser.parse_args(["--preset", "fast"])
     apply_preset(args, parser)
-    assert (args.iters, args.prior, args.sh_degree) == (300, "none", 3)  # SH: the plan decides
-    assert args.effects_overrides == {"pseudo_views": "off"}
-    args = parser.parse_args(["--preset", "fast", "--sh-degree", "1", "--prior", "auto"])
+    assert (args.iters, args.prior, args.sh_degree) == (300, "auto", 3)  # SH: the plan decides
+    assert args.effects_overrides == {}
+    argv = ["--preset", "fast", "--sh-degree", "1", "--prior", "none"]
+    args = parser.parse_args(argv)
+    args._argv = argv  # as gsgs_engine.cli.main records it: a typed default still wins
     apply_preset(args, parser)
-    assert (args.iters, args.prior, args.sh_degree) == (300, "auto", 1)  # typed flags win
+    assert (args.iters, args.prior, args.sh_degree) == (300, "none", 1)  # typed flags win
+    assert args.effects_overrides == {}  # the preset's own overrides: a typed --prior none plans no pseudo views itself
+    argv = ["--preset", "balanced", "--prior=none"]
+    args = parser.parse_args(argv)
+    args._argv = argv
+    apply_preset(args, parser)
+    assert (args.iters, args.prior) == (PRESETS["balanced"]["iters"], "none")
     assert apply_preset(parser.parse_args([]), parser) == {}
     tc, pc, eff, scale = apply_preset((TrainConfig(), PriorConfig()), name="best")
     x = PRESETS["best"]
