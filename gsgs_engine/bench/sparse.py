@@ -58,6 +58,7 @@ ABLATION: dict[str, dict] = {
     "dense + warp-inpaint pseudo views": {"prior": "warp", "init": "mvs"},
     "dense + coregularisation": {"prior": "none", "init": "mvs", "techniques": ["coregularisation"]},
     "dense + exposure": {"prior": "none", "init": "mvs", "techniques": ["exposure"]},
+    "dense + smoothing": {"prior": "none", "init": "mvs", "techniques": ["smoothing"]},
     "dense + depth regulariser": {"prior": "depth", "init": "mvs", "prior_settings": {"depth_source": "sparse"}},
     "auto": VARIANTS["auto"],
 }
