@@ -602,3 +602,15 @@ def test_smoothing_filters_training_renders_and_bakes_at_the_last_step():
     assert torch.equal(after, training), "after baking the model is the filtered one: no second filter"
     assert all(torch.isfinite(p).all() for p in trainer.model.params.values())
     assert smoothing.report()["baked_at_step"] == 6
+
+
+def test_train_help_names_every_technique_of_the_catalogue():
+    import argparse
+
+    from gsgs_engine.priors.config import add_prior_arguments
+    from gsgs_engine.train.techniques.catalogue import TECHNIQUES
+
+    parser = argparse.ArgumentParser()
+    add_prior_arguments(parser)
+    text = next(a.help for a in parser._actions if a.dest == "techniques")
+    assert all(name in text for name in TECHNIQUES), text
