@@ -6,14 +6,15 @@ convolves every Gaussian with an isotropic 3D Gaussian the size of its finest tr
 covariance R S^2 R^T becomes R S^2 R^T + s2 I, with s2 = FILTER_VARIANCE * (z / f)^2, where z / f is
 the Gaussian's world-space pixel footprint (its depth over the focal length in pixels) in the
 training camera that samples it most finely. An isotropic term commutes with the rotation, so the
-filtered Gaussian keeps its rotation and its scales become sqrt(s^2 + s2) (`smoothed_scales`);
+filtered Gaussian keeps its rotation and its scales become sqrt(s^2 + s2) (`smoothed`);
 its opacity is scaled by sqrt(det(S^2) / det(S^2 + s2 I)) = prod(s / sqrt(s^2 + s2)) so that its
 integral, and so its contribution to a pixel much larger than it, stays the same.
 
 Every supervised render sees the filtered model (`render_inputs`). The footprints are recomputed
 from the current centres every `REFRESH` steps and whenever the Gaussian count changes. At the last
-step the filter is baked into the model's parameters (log-scales and opacity logits), so the saved
-model, evaluation renders, the PLY and Blender show what training optimised; a run that trains past
+step the filter is baked into the model's parameters (log-scales and opacity logits, with footprints
+recomputed from the final centres), so the saved model, evaluation renders, the PLY and Blender show
+the filtered Gaussians training optimised; a run that trains past
 that point (a resumed longer schedule) renders without the filter again.
 """
 
@@ -33,8 +34,8 @@ def pixel_footprints(means: torch.Tensor, cameras) -> torch.Tensor:
     """Each centre's finest world-space pixel size over `cameras`: min of z / max(fx, fy) over the cameras it lies
     in front of and inside (the image widened by FRUSTUM_MARGIN); [N], float32 on the CPU.
 
-    A centre no camera sees gets the largest footprint of the others; with no centre seen at all (or a non-finite
-    centre) the result is 0 there: no filter."""
+    A centre no camera sees (a non-finite centre too) gets the largest footprint of the others; with no centre seen
+    at all the result is 0 everywhere: no filter."""
     x = means.detach().to("cpu", torch.float32)
     best = torch.full((x.shape[0],), float("inf"))
     for cam in cameras:
