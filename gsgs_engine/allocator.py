@@ -8,8 +8,9 @@ thresholds below (perf, one thread; docs/speed.md). Raising them makes malloc ke
 process stays at its peak size instead of shrinking between steps, and nothing else changes (results are
 bit-identical).
 
-Applied once by the `gsgs` command line (every engine process: training, jobs, benchmarks); a no-op where the C
-library is not glibc. GSGS_MALLOC_TUNING=0 leaves malloc's defaults.
+Applied once by the `gsgs` command line (every engine process: training, jobs, benchmarks) and by the benchmarks' cell
+workers (`python -m gsgs_engine.bench.rasterizer / train_step / accuracy_cell`), which time what the command line
+runs; a no-op where the C library is not glibc. GSGS_MALLOC_TUNING=0 leaves malloc's defaults.
 """
 
 from __future__ import annotations

@@ -53,3 +53,28 @@ def test_the_command_line_applies_it(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(allocator, "keep_freed_memory", lambda: calls.append(1) or True)
     assert cli.main(["eval", str(tmp_path / "no-such-run"), "--data", str(tmp_path / "no-data")]) == 2  # fails fast
     assert calls == [1]
+
+
+@pytest.mark.parametrize("module, argv", [
+    ("gsgs_engine.bench.rasterizer", ["--cell", "{}"]),
+    ("gsgs_engine.bench.train_step", ["--cell", "{}"]),
+    ("gsgs_engine.bench.accuracy_cell", ["DATA", "--out", "OUT", "--settings", "{}"]),
+])
+def test_the_benchmarks_cell_workers_apply_it_first(monkeypatch, module, argv):
+    """A cell worker (`python -m MODULE`) times what `gsgs train` runs: the same malloc settings, set before the cell
+    builds anything."""
+    import importlib
+
+    from gsgs_engine import allocator
+
+    class Applied(Exception):
+        pass
+
+    def keep():
+        raise Applied
+
+    monkeypatch.setattr(allocator, "keep_freed_memory", keep)
+    worker = importlib.import_module(module)
+    main = getattr(worker, "_cell_main", None)
+    with pytest.raises(Applied):
+        main([module, *argv]) if main is not None else worker.main(argv)

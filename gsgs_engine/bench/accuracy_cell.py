@@ -139,6 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--train-views", type=int, default=None)
     parser.add_argument("--format", default="auto")
     args = parser.parse_args(argv)
+    from gsgs_engine.allocator import keep_freed_memory
+
+    keep_freed_memory()  # the cell trains as `gsgs train` does (the command line sets it)
     try:
         record = run_cell(args.data, Path(args.out), json.loads(args.settings), args.train_views, args.format)
     except GsgsError as exc:

@@ -257,6 +257,9 @@ def run(args) -> int:
 
 
 def _cell_main(argv: list[str]) -> int:
+    from gsgs_engine.allocator import keep_freed_memory
+
+    keep_freed_memory()  # the cell runs as every engine process does (the `gsgs` command line sets it)
     spec = json.loads(argv[argv.index("--cell") + 1])
     row = run_cell(spec["backend"], spec["n"], spec["resolution"], spec["repeats"], spec["budget_s"], spec["seed"],
                    spec["threads"])

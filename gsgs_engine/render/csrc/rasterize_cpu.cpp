@@ -155,7 +155,7 @@ GSGS_INLINE vf gaussian_power(const ColumnTerms& col, float dy, float c_dy2) {
 // A millesimal margin in the exponent covers the rounding of exp_nonpositive (~1 ulp), so an 8-pixel step whose
 // powers all lie below it changes nothing in either pass and is skipped before its exp is evaluated: results are
 // bit-identical to evaluating it. (Opacities below 1/255 never reach a tile: their alpha extent is empty.)
-float power_floor(double log_opacity) {
+GSGS_INLINE float power_floor(double log_opacity) {
   return static_cast<float>(kLogMinAlpha - log_opacity) - 1e-3f;
 }
 
@@ -172,7 +172,7 @@ GSGS_INLINE void lane_range(float centre, float ext, int start, int count, int* 
 // Half-extents of the ellipse o * exp(-q/2) >= 1/255, q = d^T conic d, i.e. q <= 2 ln(255 o); its
 // x half-width is sqrt(k * Sigma_xx) with Sigma = conic^-1. Pixels outside cannot pass the alpha
 // test, so restricting the loops to it changes no result; the margin covers float rounding.
-void alpha_extent(float A, float B, float C, double log_opacity, float* ext_x, float* ext_y) {
+GSGS_INLINE void alpha_extent(float A, float B, float C, double log_opacity, float* ext_x, float* ext_y) {
   const double a = A, b = B, c = C;
   const double det = a * c - b * b;
   if (!(a > 0.0 && c > 0.0 && det > 0.0 && std::isfinite(det))) {
@@ -180,20 +180,21 @@ void alpha_extent(float A, float B, float C, double log_opacity, float* ext_x, f
     *ext_x = *ext_y = std::numeric_limits<float>::infinity();
     return;
   }
-  const double k = std::max(0.0, 2.0 * (kLog255 + log_opacity));
-  *ext_x = static_cast<float>(std::sqrt(k * c / det) * 1.001 + 1.0);
-  *ext_y = static_cast<float>(std::sqrt(k * a / det) * 1.001 + 1.0);
+  const double k_over_det = std::max(0.0, 2.0 * (kLog255 + log_opacity)) / det;  // one division for both
+  *ext_x = static_cast<float>(std::sqrt(c * k_over_det) * 1.001 + 1.0);
+  *ext_y = static_cast<float>(std::sqrt(a * k_over_det) * 1.001 + 1.0);
 }
 
 // A splat's alpha >= 1/255 bounds (alpha_extent, power_floor) from one logarithm of its opacity. alpha =
 // min(0.99, o G) with G <= 1, so o < 1/255 can never pass (NaN neither): an empty extent, an infinite floor.
-void alpha_bounds(Splat& sp) {
+GSGS_INLINE void alpha_bounds(Splat& sp) {
   if (!(sp.opacity >= kMinAlpha)) {
     sp.ext_x = sp.ext_y = -1.0f;
     sp.power_floor = std::numeric_limits<float>::infinity();
     return;
   }
-  const double log_opacity = std::log(static_cast<double>(sp.opacity));
+  // logf: its error (~1e-7) is far inside the margins both bounds carry
+  const double log_opacity = std::log(sp.opacity);
   alpha_extent(sp.A, sp.B, sp.C, log_opacity, &sp.ext_x, &sp.ext_y);
   sp.power_floor = power_floor(log_opacity);
 }
@@ -512,6 +513,46 @@ Splat* splat_records(const at::Tensor& t) {
   return reinterpret_cast<Splat*>(t.data_ptr<float>());
 }
 
+// Gaussians [g0, g1): whether each one's 3-sigma tile rectangle reaches the image (binned) and that rectangle.
+// A named function, so the processor's AVX2 clone (GSGS_HOT) runs it (floor is one instruction there).
+GSGS_HOT void tile_rects(const float* m, const int32_t* rad, int tiles_x, int tiles_y, uint8_t* binned,
+                         TileRect* rect_of, int64_t g0, int64_t g1) {
+  for (int64_t g = g0; g < g1; ++g) binned[g] = tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect_of[g]);
+}
+
+// The per-Gaussian inputs a splat record is made of.
+struct SplatInputs {
+  const float *means2d, *conics, *colors, *opacities, *depths;
+};
+
+// Ranks [s0, s1): the splat record of Gaussian order[s] with its alpha bounds, and its tile rectangle clipped to
+// them. The inputs are read in depth order, so each rank's are asked for kAhead ranks early (they lie anywhere in
+// the arrays); the records are written in sequence. Building them in rank order instead of gathering records made
+// in index order saves one pass over every record.
+GSGS_HOT void gather_splats(const SplatInputs& in, const int32_t* order, const TileRect* rect_of, Splat* splats,
+                            TileRect* rects, int64_t s0, int64_t s1) {
+  constexpr int64_t kAhead = 16;
+  for (int64_t s = s0; s < s1; ++s) {
+    if (s + kAhead < s1) {
+      const int64_t a = order[s + kAhead];
+      __builtin_prefetch(in.means2d + 2 * a);
+      __builtin_prefetch(in.conics + 3 * a);
+      __builtin_prefetch(in.colors + 3 * a);
+      __builtin_prefetch(in.opacities + a);
+      __builtin_prefetch(in.depths + a);
+      __builtin_prefetch(rect_of + a);
+    }
+    const int64_t g = order[s];
+    Splat& sp = splats[s];
+    sp = Splat{in.means2d[2 * g], in.means2d[2 * g + 1], in.conics[3 * g], in.conics[3 * g + 1], in.conics[3 * g + 2],
+               in.opacities[g], in.colors[3 * g], in.colors[3 * g + 1], in.colors[3 * g + 2], in.depths[g],
+               0.0f, 0.0f, 0.0f};
+    alpha_bounds(sp);
+    rects[s] = rect_of[g];
+    clip_to_alpha_extent(sp, &rects[s]);
+  }
+}
+
 Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                       const at::Tensor& opacities, const at::Tensor& depths, const at::Tensor& radii,
                       int tiles_x, int tiles_y) {
@@ -525,22 +566,12 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   const int n_tiles = tiles_x * tiles_y;
 
   Binning b;
-  // Every Gaussian: whether its 3-sigma tile rectangle reaches the image (it is binned) and, where it does, its
-  // splat and that rectangle clipped to its alpha box (possibly empty): on all threads, in index order (the inputs
-  // read in sequence)...
+  // Every Gaussian: whether its 3-sigma tile rectangle reaches the image (it is binned), and that rectangle, on all
+  // threads (tile_rects)...
   uint8_t* const binned = reusable_buffer<uint8_t, 0>(n);
   TileRect* const rect_of = reusable_buffer<TileRect, 1>(n);
-  Splat* const splat_of = reusable_buffer<Splat, 2>(n);
   at::parallel_for(0, n, 2048, [&](int64_t g0, int64_t g1) {
-    for (int64_t g = g0; g < g1; ++g) {
-      binned[g] = tile_rect(m[2 * g], m[2 * g + 1], rad[g], tiles_x, tiles_y, &rect_of[g]) ? 1 : 0;
-      if (!binned[g]) continue;
-      Splat& sp = splat_of[g];
-      sp = Splat{m[2 * g], m[2 * g + 1], cn[3 * g], cn[3 * g + 1], cn[3 * g + 2], op[g], col[3 * g],
-                 col[3 * g + 1], col[3 * g + 2], dp[g], 0.0f, 0.0f, 0.0f};
-      alpha_bounds(sp);
-      clip_to_alpha_extent(sp, &rect_of[g]);
-    }
+    tile_rects(m, rad, tiles_x, tiles_y, binned, rect_of, g0, g1);
   });
   // ...then the binned ones sorted by depth...
   std::vector<uint32_t> keys;
@@ -557,19 +588,14 @@ Binning bin_gaussians(const at::Tensor& means2d, const at::Tensor& conics, const
   b.order = std::move(ids);
   const int64_t n_vis = static_cast<int64_t>(b.order.size());
 
-  // ...and their splats and clipped rectangles gathered into depth order (one record each, fetched ahead). The
-  // splats outlive the call: the backward composites from the same records.
+  // ...and their splat records built in depth order, each with its alpha >= 1/255 bounds and its rectangle clipped
+  // to them (possibly empty; gather_splats). The records outlive the call: the backward composites from them.
   b.splats = at::empty({n_vis, kSplatFloats}, at::kFloat);
   Splat* const splats = splat_records(b.splats);
   TileRect* const rects = reusable_buffer<TileRect, 0>(n_vis);
+  const SplatInputs in{m, cn, col, op, dp};
   at::parallel_for(0, n_vis, 2048, [&](int64_t s0, int64_t s1) {
-    constexpr int64_t kAhead = 16;
-    for (int64_t s = s0; s < s1; ++s) {
-      if (s + kAhead < s1) __builtin_prefetch(splat_of + b.order[s + kAhead]);
-      const int64_t g = b.order[s];
-      splats[s] = splat_of[g];
-      rects[s] = rect_of[g];
-    }
+    gather_splats(in, b.order.data(), rect_of, splats, rects, s0, s1);
   });
   // Rectangles at least three tiles each way are culled row by row to the tiles their ellipse reaches
   // (tile_row_span, in cull_rows; the spans in one buffer, span_offset[s] the first row of rank s, an empty range for
