@@ -74,6 +74,9 @@ class LPIPS(nn.Module):
         self.net = net
         self.features = FEATURES[net]()
         self.lins = nn.ModuleList(nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in CHANNELS[net])
+        # channels-last convolutions: oneDNN's faster path on the CPU (2 threads, VGG16's features of two 400 x 400
+        # images 1.89 -> 1.48 s, an LPIPS pair 2.20 -> 1.85 s; distances equal to 1e-8); load_state_dict keeps it
+        self.features.to(memory_format=torch.channels_last)
         self.register_buffer("shift", torch.tensor(LPIPS_SHIFT).view(1, 3, 1, 1))
         self.register_buffer("scale", torch.tensor(LPIPS_SCALE).view(1, 3, 1, 1))
         self.requires_grad_(False)
@@ -82,7 +85,7 @@ class LPIPS(nn.Module):
     def tapped_features(self, x: torch.Tensor) -> list[torch.Tensor]:
         taps = set(TAPS[self.net])
         out = []
-        h = (x - self.shift) / self.scale
+        h = ((x - self.shift) / self.scale).contiguous(memory_format=torch.channels_last)
         for i, layer in enumerate(self.features):
             h = layer(h)
             if i in taps:
