@@ -1,6 +1,6 @@
 run() { # tag env...
   local tag=$1; shift
-  d=$(mktemp -d /tmp/gsgs_ab.XXXX); cp $(dirname $0)/lego_job.json $d/
+  d=$(mktemp -d /tmp/gsgs_ab.XXXX); cp $(dirname $0)/lego_job.json $d/job.json
   env TAG=$tag OMP_NUM_THREADS=2 "$@" /work/main/.venv/bin/python $(dirname $0)/upto.py 300 $d 2>&1 | grep RESULT; rm -rf $d
 }
 for r in 1 2; do
