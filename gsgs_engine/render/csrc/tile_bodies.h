@@ -51,8 +51,14 @@ GSGS_INLINE void fetch_splat(const Splat* s) {
   __builtin_prefetch(reinterpret_cast<const char*>(s) + sizeof(Splat) - 1);
 }
 
-// Forward of one tile. Per-pixel state lives in lane vectors; each Gaussian updates only the rows
-// (and 8-lane halves) its alpha ellipse reaches, branch-free inside a row.
+// Forward of one tile. Per-pixel state lives in lane vectors of 4 x 2-pixel blocks (four columns of two rows: a
+// small splat's footprint fills more of a block's lanes than of an 8 x 1 row segment); each Gaussian updates only
+// the blocks its alpha ellipse reaches, branch-free inside a block. Every pixel goes through the same operations in
+// the same order as with row segments (the backward's layout), so the results are the same to the bit.
+constexpr int kBlockW = 4, kBlockH = 2;
+constexpr int kBlocksPerRow = kTile / kBlockW;
+GSGS_INLINE int block_lane_x(int i) { return i % kBlockW; }
+GSGS_INLINE int block_lane_y(int i) { return i / kBlockW; }
 void forward_tile(GSGS_TILE_ARGS_F) {
   vf T[kVecs], cr[kVecs], cg[kVecs], cb[kVecs], dep[kVecs];
   vi active[kVecs], last[kVecs];
@@ -63,30 +69,39 @@ void forward_tile(GSGS_TILE_ARGS_F) {
     cr[v] = cg[v] = cb[v] = dep[v] = splat(0.0f);
     last[v] = splat_i(0);
     for (int i = 0; i < kLanes; ++i) {
-      const int p = v * kLanes + i;
-      active[v][i] = (p / kTile < rows && p % kTile < cols) ? -1 : 0;  // pixels outside the image never blend
+      const int x = (v % kBlocksPerRow) * kBlockW + block_lane_x(i), y = (v / kBlocksPerRow) * kBlockH + block_lane_y(i);
+      active[v][i] = (y < rows && x < cols) ? -1 : 0;  // pixels outside the image never blend
     }
   }
-  vf px[kVecPerRow];
-  pixel_centres(px0, px);
+  vf px[kBlocksPerRow];  // pixel-centre x of each block column's lanes
+  for (int c = 0; c < kBlocksPerRow; ++c)
+    for (int i = 0; i < kLanes; ++i) px[c][i] = static_cast<float>(px0 + c * kBlockW + block_lane_x(i)) + 0.5f;
+  vf py_off;  // pixel-centre y of a block's lanes, less the block row's first row
+  for (int i = 0; i < kLanes; ++i) py_off[i] = static_cast<float>(block_lane_y(i));
 
   for (int j = 0; j < std::min(count, kFetchAhead); ++j) fetch_splat(splats + ranks[j]);
   for (int j = 0; j < count; ++j) {
     if (j + kFetchAhead < count) fetch_splat(splats + ranks[j + kFetchAhead]);
     const Splat s = splats[ranks[j]];
-    int r_lo, r_hi, v_lo = 0, v_hi = -1;
-    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
+    if (s.ext_x < 0.0f) continue;
+    int c_lo, c_hi, r_lo, r_hi;
+    lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
+    if (c_lo > c_hi) continue;
+    lane_range(s.my, s.ext_y, py0, rows, &r_lo, &r_hi);
+    if (r_lo > r_hi) continue;
+    const int b_lo = c_lo / kBlockW, b_hi = c_hi / kBlockW;
     vi stopped = splat_i(0);
     const vi contributor = splat_i(j + 1);
-    ColumnTerms col[kVecPerRow];
-    for (int h = v_lo; h <= v_hi; ++h) col[h] = column_terms(s, px[h]);
-    for (int row = r_lo; row <= r_hi; ++row) {
-      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
-      const float row_part = row_term(s, dy);
-      for (int h = v_lo; h <= v_hi; ++h) {
-        const int v = row * kVecPerRow + h;
+    ColumnTerms col[kBlocksPerRow];
+    for (int h = b_lo; h <= b_hi; ++h) col[h] = column_terms(s, px[h]);
+    for (int br = r_lo / kBlockH; br <= r_hi / kBlockH; ++br) {
+      // dy and C dy^2 per lane, as the row segments take them per row (the same values)
+      const vf dy = s.my - ((static_cast<float>(py0 + br * kBlockH) + py_off) + 0.5f);
+      const vf row_part = s.C * dy * dy;
+      for (int h = b_lo; h <= b_hi; ++h) {
+        const int v = br * kBlocksPerRow + h;
         if (!any_lane(active[v])) continue;  // these 8 pixels are finished
-        const vf power = gaussian_power(col[h], dy, row_part);
+        const vf power = -0.5f * (col[h].a_dx * col[h].dx + row_part) - col[h].b_dx * dy;
         if (!any_lane(power >= s.power_floor)) continue;  // no lane reaches alpha 1/255 (see power_floor)
         const vf oG = s.opacity * exp_nonpositive(power);
         const vf alpha = clamp_alpha(oG);
@@ -114,7 +129,7 @@ void forward_tile(GSGS_TILE_ARGS_F) {
 
   for (int y = 0; y < rows; ++y) {
     for (int x = 0; x < cols; ++x) {
-      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
+      const int v = (y / kBlockH) * kBlocksPerRow + x / kBlockW, i = (y % kBlockH) * kBlockW + x % kBlockW;
       const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
       const float t = T[v][i];
       out_color[o * 3 + 0] = cr[v][i] + t * background[0];
