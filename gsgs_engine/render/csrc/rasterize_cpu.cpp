@@ -148,8 +148,12 @@ GSGS_INLINE ColumnTerms column_terms(const Splat& s, vf px) {
   const vf dx = s.mx - px;
   return ColumnTerms{dx, s.A * dx, s.B * dx};
 }
-GSGS_INLINE float row_term(const Splat& s, float dy) { return s.C * dy * dy; }
-GSGS_INLINE vf gaussian_power(const ColumnTerms& col, float dy, float c_dy2) {
+// dy is one float for an 8 x 1 row segment (the backward) and a lane vector for a 4 x 2 block (the forward): the same
+// expression tree either way, so a pixel's exponent is the same value in both passes.
+template <typename D>
+GSGS_INLINE D row_term(const Splat& s, D dy) { return s.C * dy * dy; }
+template <typename D>
+GSGS_INLINE vf gaussian_power(const ColumnTerms& col, D dy, D c_dy2) {
   return -0.5f * (col.a_dx * col.dx + c_dy2) - col.b_dx * dy;
 }
 
@@ -378,18 +382,27 @@ GSGS_INLINE void pixel_centres(int px0, vf* out) {
     for (int i = 0; i < kLanes; ++i) out[v][i] = static_cast<float>(px0 + v * kLanes + i) + 0.5f;
 }
 
-// Rows and lane vectors of the tile a Gaussian can reach (empty: r_lo > r_hi).
+// Pixel columns [c_lo, c_hi] and rows [r_lo, r_hi] of the tile a Gaussian can reach; false when none.
+GSGS_INLINE bool reach_pixels(const Splat& s, int px0, int py0, int cols, int rows, int* c_lo, int* c_hi, int* r_lo,
+                              int* r_hi) {
+  if (s.ext_x < 0.0f) return false;
+  lane_range(s.mx, s.ext_x, px0, cols, c_lo, c_hi);
+  if (*c_lo > *c_hi) return false;
+  lane_range(s.my, s.ext_y, py0, rows, r_lo, r_hi);
+  return *r_lo <= *r_hi;
+}
+
+// Rows and 8 x 1 lane vectors of the tile a Gaussian can reach (empty: r_lo > r_hi).
 GSGS_INLINE void reach(const Splat& s, int px0, int py0, int cols, int rows, int* r_lo, int* r_hi, int* v_lo,
                        int* v_hi) {
-  *r_lo = 0;
-  *r_hi = -1;
-  if (s.ext_x < 0.0f) return;
   int c_lo, c_hi;
-  lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
-  if (c_lo > c_hi) return;
+  if (!reach_pixels(s, px0, py0, cols, rows, &c_lo, &c_hi, r_lo, r_hi)) {
+    *r_lo = 0;
+    *r_hi = -1;
+    return;
+  }
   *v_lo = c_lo / kLanes;
   *v_hi = c_hi / kLanes;
-  lane_range(s.my, s.ext_y, py0, rows, r_lo, r_hi);
 }
 
 // The tile bodies (tile_bodies.h) compiled four times: AVX-512VL (the same 8-lane code with FMA, given 32 vector

@@ -83,12 +83,8 @@ void forward_tile(GSGS_TILE_ARGS_F) {
   for (int j = 0; j < count; ++j) {
     if (j + kFetchAhead < count) fetch_splat(splats + ranks[j + kFetchAhead]);
     const Splat s = splats[ranks[j]];
-    if (s.ext_x < 0.0f) continue;
     int c_lo, c_hi, r_lo, r_hi;
-    lane_range(s.mx, s.ext_x, px0, cols, &c_lo, &c_hi);
-    if (c_lo > c_hi) continue;
-    lane_range(s.my, s.ext_y, py0, rows, &r_lo, &r_hi);
-    if (r_lo > r_hi) continue;
+    if (!reach_pixels(s, px0, py0, cols, rows, &c_lo, &c_hi, &r_lo, &r_hi)) continue;
     const int b_lo = c_lo / kBlockW, b_hi = c_hi / kBlockW;
     vi stopped = splat_i(0);
     const vi contributor = splat_i(j + 1);
@@ -97,11 +93,11 @@ void forward_tile(GSGS_TILE_ARGS_F) {
     for (int br = r_lo / kBlockH; br <= r_hi / kBlockH; ++br) {
       // dy and C dy^2 per lane, as the row segments take them per row (the same values)
       const vf dy = s.my - ((static_cast<float>(py0 + br * kBlockH) + py_off) + 0.5f);
-      const vf row_part = s.C * dy * dy;
+      const vf row_part = row_term(s, dy);
       for (int h = b_lo; h <= b_hi; ++h) {
         const int v = br * kBlocksPerRow + h;
         if (!any_lane(active[v])) continue;  // these 8 pixels are finished
-        const vf power = -0.5f * (col[h].a_dx * col[h].dx + row_part) - col[h].b_dx * dy;
+        const vf power = gaussian_power(col[h], dy, row_part);
         if (!any_lane(power >= s.power_floor)) continue;  // no lane reaches alpha 1/255 (see power_floor)
         const vf oG = s.opacity * exp_nonpositive(power);
         const vf alpha = clamp_alpha(oG);
