@@ -11,8 +11,9 @@
 //     Gaussian is listed only in the tiles its alpha >= 1/255 ellipse reaches (box, then row spans), which
 //     leaves out only tiles it adds nothing to;
 //   * each tile is rendered Gaussian-major: for every Gaussian, the 8-pixel lane vectors its alpha
-//     ellipse can reach are updated with branch-free 8-lane vector code (a polynomial exp, no libm) in
-//     4 x 2-pixel blocks (fewer steps on small splats than 8 x 1 row segments);
+//     ellipse can reach are updated with branch-free 8-lane vector code (a polynomial exp, no libm): 4 x 2-pixel
+//     blocks in the forward (fewer steps on small splats), 8 x 1 row segments in the backward (its dy moments
+//     are taken once a row); each pixel is blended by the same operations either way;
 //   * the backward pass walks each tile's list back to front, reconstructing T per pixel as 3DGS's CUDA
 //     backward does, and writes one gradient record per (tile, Gaussian) entry; records are then summed
 //     per Gaussian in a fixed order, so results are deterministic for any thread count.
@@ -76,6 +77,7 @@ static_assert(sizeof(Splat) == kSplatFloats * sizeof(float), "Splat is a record 
 typedef float vf __attribute__((vector_size(32), aligned(32)));
 typedef int32_t vi __attribute__((vector_size(32), aligned(32)));
 constexpr int kLanes = 8;
+constexpr int kVecPerRow = kTile / kLanes;
 constexpr int kVecs = kTilePixels / kLanes;
 
 GSGS_INLINE vf splat(float v) { return vf{} + v; }
@@ -134,11 +136,11 @@ GSGS_INLINE vf exp_clamped(vf x) {
   return y * (vf)(e << 23);
 }
 
-// The Gaussian exponent -(A dx^2 + C dy^2) / 2 - B dx dy, with what depends on a block column alone (dx per lane,
-// A dx, B dx) made once per Gaussian and block column and C dy^2 once per block row: the same expression tree as
-// evaluating it whole (so the same rounding, and exactly 0 along a needle where A = C = -B), three vector operations
-// a step instead of six. Forward and backward share these functions, so both take the same skip decisions bit for
-// bit.
+// The Gaussian exponent -(A dx^2 + C dy^2) / 2 - B dx dy, with what depends on the 8-pixel column alone (dx per
+// lane, A dx, B dx) made once per Gaussian and column and the row's C dy^2 once per row: the same expression tree
+// as evaluating it whole (so the same rounding, and exactly 0 along a needle where A = C = -B), three vector
+// operations a step instead of six. Forward and backward share these functions, so both take the same skip
+// decisions bit for bit.
 struct ColumnTerms {
   vf dx, a_dx, b_dx;
 };
@@ -146,8 +148,12 @@ GSGS_INLINE ColumnTerms column_terms(const Splat& s, vf px) {
   const vf dx = s.mx - px;
   return ColumnTerms{dx, s.A * dx, s.B * dx};
 }
-GSGS_INLINE vf row_term(const Splat& s, vf dy) { return s.C * dy * dy; }
-GSGS_INLINE vf gaussian_power(const ColumnTerms& col, vf dy, vf c_dy2) {
+// dy is one float for an 8 x 1 row segment (the backward) and a lane vector for a 4 x 2 block (the forward): the same
+// expression tree either way, so a pixel's exponent is the same value in both passes.
+template <typename D>
+GSGS_INLINE D row_term(const Splat& s, D dy) { return s.C * dy * dy; }
+template <typename D>
+GSGS_INLINE vf gaussian_power(const ColumnTerms& col, D dy, D c_dy2) {
   return -0.5f * (col.a_dx * col.dx + c_dy2) - col.b_dx * dy;
 }
 
@@ -370,33 +376,10 @@ void for_each_tile(const std::vector<int32_t>& order, Fn&& fn) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Both passes keep a tile's per-pixel state in lane vectors of 4 x 2-pixel blocks (four columns of two rows): a
-// small splat's footprint fills more of a block's lanes than of an 8 x 1 row segment (on a trained lego model 0.86x
-// the vector steps, 67 % of their lanes used against 58 %). Pixel (x, y) of a tile is lane block_lane(x, y) of
-// block block_of(x, y); blocks are numbered row-major, kBlocksPerRow to a block row.
-constexpr int kBlockW = 4, kBlockH = 2;
-constexpr int kBlocksPerRow = kTile / kBlockW;
-static_assert(kBlockW * kBlockH == kLanes && kBlocksPerRow * (kTile / kBlockH) == kVecs, "blocks tile the tile");
-GSGS_INLINE int block_of(int x, int y) { return (y / kBlockH) * kBlocksPerRow + x / kBlockW; }
-GSGS_INLINE int block_lane(int x, int y) { return (y % kBlockH) * kBlockW + x % kBlockW; }
-
-// The pixel-centre x of each block column's lanes, and each lane's row within its block.
-struct BlockCentres {
-  vf px[kBlocksPerRow];
-  vf row_in_block;
-};
-GSGS_INLINE BlockCentres block_centres(int px0) {
-  BlockCentres c;
-  for (int i = 0; i < kLanes; ++i) {
-    for (int h = 0; h < kBlocksPerRow; ++h)
-      c.px[h][i] = static_cast<float>(px0 + h * kBlockW + i % kBlockW) + 0.5f;
-    c.row_in_block[i] = static_cast<float>(i / kBlockW);
-  }
-  return c;
-}
-// dy per lane of block row `br`: the value an 8 x 1 row segment took per row (py0 + row is exact in float).
-GSGS_INLINE vf block_dy(const Splat& s, int py0, int br, const BlockCentres& c) {
-  return s.my - ((static_cast<float>(py0 + br * kBlockH) + c.row_in_block) + 0.5f);
+// Lane vectors of the pixel-centre x coordinates of a tile row.
+GSGS_INLINE void pixel_centres(int px0, vf* out) {
+  for (int v = 0; v < kVecPerRow; ++v)
+    for (int i = 0; i < kLanes; ++i) out[v][i] = static_cast<float>(px0 + v * kLanes + i) + 0.5f;
 }
 
 // Pixel columns [c_lo, c_hi] and rows [r_lo, r_hi] of the tile a Gaussian can reach; false when none.
@@ -409,16 +392,17 @@ GSGS_INLINE bool reach_pixels(const Splat& s, int px0, int py0, int cols, int ro
   return *r_lo <= *r_hi;
 }
 
-// Block columns [b_lo, b_hi] and block rows [br_lo, br_hi] of the tile a Gaussian can reach; false when none.
-GSGS_INLINE bool reach_blocks(const Splat& s, int px0, int py0, int cols, int rows, int* b_lo, int* b_hi, int* br_lo,
-                              int* br_hi) {
-  int c_lo, c_hi, r_lo, r_hi;
-  if (!reach_pixels(s, px0, py0, cols, rows, &c_lo, &c_hi, &r_lo, &r_hi)) return false;
-  *b_lo = c_lo / kBlockW;
-  *b_hi = c_hi / kBlockW;
-  *br_lo = r_lo / kBlockH;
-  *br_hi = r_hi / kBlockH;
-  return true;
+// Rows and 8 x 1 lane vectors of the tile a Gaussian can reach (empty: r_lo > r_hi).
+GSGS_INLINE void reach(const Splat& s, int px0, int py0, int cols, int rows, int* r_lo, int* r_hi, int* v_lo,
+                       int* v_hi) {
+  int c_lo, c_hi;
+  if (!reach_pixels(s, px0, py0, cols, rows, &c_lo, &c_hi, r_lo, r_hi)) {
+    *r_lo = 0;
+    *r_hi = -1;
+    return;
+  }
+  *v_lo = c_lo / kLanes;
+  *v_hi = c_hi / kLanes;
 }
 
 // The tile bodies (tile_bodies.h) compiled four times: AVX-512VL (the same 8-lane code with FMA, given 32 vector

@@ -51,8 +51,14 @@ GSGS_INLINE void fetch_splat(const Splat* s) {
   __builtin_prefetch(reinterpret_cast<const char*>(s) + sizeof(Splat) - 1);
 }
 
-// Forward of one tile. Per-pixel state lives in the lane vectors of 4 x 2-pixel blocks (block_of / block_lane);
-// each Gaussian updates only the blocks its alpha ellipse reaches, branch-free inside a block.
+// Forward of one tile. Per-pixel state lives in lane vectors of 4 x 2-pixel blocks (four columns of two rows: a
+// small splat's footprint fills more of a block's lanes than of an 8 x 1 row segment); each Gaussian updates only
+// the blocks its alpha ellipse reaches, branch-free inside a block. Every pixel goes through the same operations in
+// the same order as with row segments (the backward's layout), so the results are the same to the bit.
+constexpr int kBlockW = 4, kBlockH = 2;
+constexpr int kBlocksPerRow = kTile / kBlockW;
+GSGS_INLINE int block_lane_x(int i) { return i % kBlockW; }
+GSGS_INLINE int block_lane_y(int i) { return i / kBlockW; }
 void forward_tile(GSGS_TILE_ARGS_F) {
   vf T[kVecs], cr[kVecs], cg[kVecs], cb[kVecs], dep[kVecs];
   vi active[kVecs], last[kVecs];
@@ -62,24 +68,31 @@ void forward_tile(GSGS_TILE_ARGS_F) {
     T[v] = splat(1.0f);
     cr[v] = cg[v] = cb[v] = dep[v] = splat(0.0f);
     last[v] = splat_i(0);
-    active[v] = splat_i(0);  // pixels outside the image never blend
+    for (int i = 0; i < kLanes; ++i) {
+      const int x = (v % kBlocksPerRow) * kBlockW + block_lane_x(i), y = (v / kBlocksPerRow) * kBlockH + block_lane_y(i);
+      active[v][i] = (y < rows && x < cols) ? -1 : 0;  // pixels outside the image never blend
+    }
   }
-  for (int y = 0; y < rows; ++y)
-    for (int x = 0; x < cols; ++x) active[block_of(x, y)][block_lane(x, y)] = -1;
-  const BlockCentres centres = block_centres(px0);
+  vf px[kBlocksPerRow];  // pixel-centre x of each block column's lanes
+  for (int c = 0; c < kBlocksPerRow; ++c)
+    for (int i = 0; i < kLanes; ++i) px[c][i] = static_cast<float>(px0 + c * kBlockW + block_lane_x(i)) + 0.5f;
+  vf py_off;  // pixel-centre y of a block's lanes, less the block row's first row
+  for (int i = 0; i < kLanes; ++i) py_off[i] = static_cast<float>(block_lane_y(i));
 
   for (int j = 0; j < std::min(count, kFetchAhead); ++j) fetch_splat(splats + ranks[j]);
   for (int j = 0; j < count; ++j) {
     if (j + kFetchAhead < count) fetch_splat(splats + ranks[j + kFetchAhead]);
     const Splat s = splats[ranks[j]];
-    int b_lo, b_hi, br_lo, br_hi;
-    if (!reach_blocks(s, px0, py0, cols, rows, &b_lo, &b_hi, &br_lo, &br_hi)) continue;
+    int c_lo, c_hi, r_lo, r_hi;
+    if (!reach_pixels(s, px0, py0, cols, rows, &c_lo, &c_hi, &r_lo, &r_hi)) continue;
+    const int b_lo = c_lo / kBlockW, b_hi = c_hi / kBlockW;
     vi stopped = splat_i(0);
     const vi contributor = splat_i(j + 1);
     ColumnTerms col[kBlocksPerRow];
-    for (int h = b_lo; h <= b_hi; ++h) col[h] = column_terms(s, centres.px[h]);
-    for (int br = br_lo; br <= br_hi; ++br) {
-      const vf dy = block_dy(s, py0, br, centres);
+    for (int h = b_lo; h <= b_hi; ++h) col[h] = column_terms(s, px[h]);
+    for (int br = r_lo / kBlockH; br <= r_hi / kBlockH; ++br) {
+      // dy and C dy^2 per lane, as the row segments take them per row (the same values)
+      const vf dy = s.my - ((static_cast<float>(py0 + br * kBlockH) + py_off) + 0.5f);
       const vf row_part = row_term(s, dy);
       for (int h = b_lo; h <= b_hi; ++h) {
         const int v = br * kBlocksPerRow + h;
@@ -112,7 +125,7 @@ void forward_tile(GSGS_TILE_ARGS_F) {
 
   for (int y = 0; y < rows; ++y) {
     for (int x = 0; x < cols; ++x) {
-      const int v = block_of(x, y), i = block_lane(x, y);
+      const int v = (y / kBlockH) * kBlocksPerRow + x / kBlockW, i = (y % kBlockH) * kBlockW + x % kBlockW;
       const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
       const float t = T[v][i];
       out_color[o * 3 + 0] = cr[v][i] + t * background[0];
@@ -150,7 +163,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
   int max_last = 0;
   for (int y = 0; y < rows; ++y) {
     for (int x = 0; x < cols; ++x) {
-      const int v = block_of(x, y), i = block_lane(x, y);
+      const int v = (y * kTile + x) / kLanes, i = x % kLanes;
       const int64_t o = static_cast<int64_t>(py0 + y) * width + (px0 + x);
       const float t = final_T[o];
       T[v][i] = t;
@@ -165,7 +178,8 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
       max_last = std::max(max_last, last_in[o]);
     }
   }
-  const BlockCentres centres = block_centres(px0);
+  vf px[kVecPerRow];
+  pixel_centres(px0, px);
 
   // Entries behind every pixel's last contributor (transmittance spent) get a zero record, no work.
   for (int j = count - 1; j >= max_last; --j) {
@@ -182,21 +196,21 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
     }
     float* record = entry_grad + static_cast<int64_t>(slots[j]) * kGradFields;
     const Splat s = splats[ranks[j]];
+    int r_lo = 0, r_hi = -1, v_lo = 0, v_hi = -1;
+    reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
     vf acc[kGradFields];
     for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
     bool touched = false;
-    int b_lo = 0, b_hi = -1, br_lo = 0, br_hi = -1;
-    reach_blocks(s, px0, py0, cols, rows, &b_lo, &b_hi, &br_lo, &br_hi);  // empty ranges when it reaches none
     const vi position = splat_i(j);
-    ColumnTerms col[kBlocksPerRow];
-    for (int h = b_lo; h <= b_hi; ++h) col[h] = column_terms(s, centres.px[h]);
-    for (int br = br_lo; br <= br_hi; ++br) {
-      const vf dy = block_dy(s, py0, br, centres);
-      const vf row_part = row_term(s, dy);
-      vf row_q = splat(0.0f), row_qx = splat(0.0f);  // this block row's sums of q and q dx (each lane's dy fixed)
+    ColumnTerms col[kVecPerRow];
+    for (int h = v_lo; h <= v_hi; ++h) col[h] = column_terms(s, px[h]);
+    for (int row = r_lo; row <= r_hi; ++row) {
+      const float dy = s.my - (static_cast<float>(py0 + row) + 0.5f);
+      const float row_part = row_term(s, dy);
+      vf row_q = splat(0.0f), row_qx = splat(0.0f);  // this row's sums of q and q dx (dy is the row's)
       bool row_touched = false;
-      for (int h = b_lo; h <= b_hi; ++h) {
-        const int v = br * kBlocksPerRow + h;
+      for (int h = v_lo; h <= v_hi; ++h) {
+        const int v = row * kVecPerRow + h;
         const vi listed = position < last[v];  // j blended into these pixels' colour (if valid)
         if (!any_lane(listed)) continue;
         const vf dx = col[h].dx;
@@ -223,8 +237,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
         const vf dL_doG = select(valid & (oG <= kMaxAlpha), dL_dalpha, splat(0.0f));
         // dL/dpower times the offsets' moments; the mean and conic gradients are formed from them per entry:
         // d power / d mean = -(A dx + B dy, B dx + C dy), d power / d conic = -(dx^2 / 2, dx dy, dy^2 / 2).
-        // The moments with dy (a lane's dy is the same in every block of a block row) are taken once a block row,
-        // from the block row's lane sums of q and q dx.
+        // The moments with dy (constant along a row) are taken once a row, from the row's sums of q and q dx.
         const vf q = dL_doG * oG;
         const vf qx = q * dx;
         row_q += q;
