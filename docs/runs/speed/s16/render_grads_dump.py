@@ -1,3 +1,4 @@
+# python render_grads_dump.py BUILD OUT CELL...: renders (and gradients) of each trained cell's first two training views and first test view; SCALE=0.5 renders at another image scale than the job's.
 import sys, json, torch
 sys.path.insert(0, sys.argv[1])
 from pathlib import Path
@@ -10,7 +11,7 @@ res = {}
 for cell in sys.argv[3:]:
     cell = Path(cell)
     job = json.loads((cell / "job.json").read_text()); d = job["data"]; s = job["settings"]
-    scene = load_scene(d["path"], resolution_scale=s.get("resolution_scale"), **{k: v for k, v in d.items() if k != "path"})
+    scene = load_scene(d["path"], resolution_scale=float(__import__("os").environ.get("SCALE", s.get("resolution_scale") or 1.0)), **{k: v for k, v in d.items() if k != "path"})
     model = GaussianModel.from_ply(read_gaussian_ply(cell / "result" / "point_cloud.ply"))
     for i, v in enumerate(scene.train[:2] + scene.test[:1]):
         params = [p.detach().clone().requires_grad_(True) for p in (model.means, model.quats, model.scales, model.opacities, model.sh(0))]
