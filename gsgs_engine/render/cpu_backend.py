@@ -24,7 +24,7 @@ from pathlib import Path
 from gsgs_engine import GsgsError
 
 CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = ("rasterize_cpu.cpp", "project_cpu.cpp", "ssim_cpu.cpp")
+SOURCES = ("rasterize_cpu.cpp", "project_cpu.cpp", "ssim_cpu.cpp", "binocular_cpu.cpp")
 # Plain -O3: no -ffast-math (NaN/inf handling and the exact 3DGS thresholds must hold) and no
 # -march=native (a cached build must run on any x86-64; the kernel carries its own AVX2 clone).
 # -ffp-contract=off keeps forward and backward evaluating alpha bit-identically; only the tile bodies' AVX2+FMA

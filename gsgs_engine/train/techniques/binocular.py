@@ -55,6 +55,7 @@ import torch.nn.functional as F
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
+from gsgs_engine.train.fused_binocular import binocular_l1, x_shift
 from gsgs_engine.train.technique import StepContext, Technique
 
 DEFAULT_WEIGHT = 1.0
@@ -107,10 +108,9 @@ def warp_shifted_to_view(camera: Camera, depth: torch.Tensor, shifted: Camera, s
     backward (tested equal). Any other pair of cameras goes through backward_warp."""
     from gsgs_engine.priors.warp import backward_warp
 
-    dt = np.asarray(camera.t, dtype=np.float64) - np.asarray(shifted.t, dtype=np.float64)
-    if not (np.array_equal(np.asarray(camera.R), np.asarray(shifted.R)) and dt[1] == 0.0 and dt[2] == 0.0):
+    baseline = x_shift(camera, shifted)
+    if baseline is None:
         return backward_warp(camera, depth, shifted, shifted_image)
-    baseline = float(dt[0])
     h, w = depth.shape
     u = torch.arange(w, dtype=depth.dtype, device=depth.device) + 0.5
     v = torch.arange(h, dtype=depth.dtype, device=depth.device) + 0.5
@@ -234,11 +234,16 @@ class BinocularConsistency(Technique):
             shifted = shifted.scaled(self.scale)
         out = tr.render_for_training(ctx, shifted, ctx.background)
         z = surface_depth(depth, alpha)
-        warped, valid = warp_shifted_to_view(camera, z, shifted, out.color)
-        mask = (valid & (alpha.detach() > MIN_OPAQUE)).detach()
+        fused = binocular_l1(camera, z, shifted, out.color, target, alpha, MIN_OPAQUE)
+        if fused is not None:  # the compiled warp + masked L1 (same value; train/fused_binocular.py)
+            l1, mask = fused
+        else:
+            warped, valid = warp_shifted_to_view(camera, z, shifted, out.color)
+            mask = (valid & (alpha.detach() > MIN_OPAQUE)).detach()
+            l1 = masked_l1(warped, target, mask)
         self.steps += 1
         self.last_valid = float(mask.float().mean())
-        terms = {"binocular_l1": (self.weight, masked_l1(warped, target, mask))}
+        terms = {"binocular_l1": (self.weight, l1)}
         if self.smooth_weight > 0:
             disparity = camera.fx * abs(baseline) / z.clamp_min(1e-6)
             terms["binocular_smooth"] = (self.smooth_weight,
