@@ -235,7 +235,7 @@ class BinocularConsistency(Technique):
         out = tr.render_for_training(ctx, shifted, ctx.background)
         z = surface_depth(depth, alpha)
         fused = binocular_l1(camera, z, shifted, out.color, target, alpha, MIN_OPAQUE)
-        if fused is not None:  # the compiled warp + masked L1 (same value; train/fused_binocular.py)
+        if fused is not None:  # the compiled warp + masked L1 (same value to float rounding; train/fused_binocular.py)
             l1, mask = fused
         else:
             warped, valid = warp_shifted_to_view(camera, z, shifted, out.color)
