@@ -356,3 +356,27 @@ def test_prior_auto_on_a_video_runs_the_4d_recipe(clip, tmp_path):
     assert metrics["plan"]["effects"]["position_lr"]["value"] == POSITION_LR_SCALE > 1
     exposure = metrics["techniques"]["exposure"]
     assert exposure["cameras"] == len({k for k in exposure["per_camera"]}) >= 2  # one correction per camera
+
+
+def test_absgrad_reaches_the_4d_densification(clip, monkeypatch):
+    from gsgs_engine.render import cpu_backend
+    from gsgs_engine.train.densify import DensifyStats
+    from gsgs_engine.train.techniques.absgrad import AbsoluteGradients
+
+    if not cpu_backend.available():
+        pytest.skip(f"compiled CPU rasteriser unavailable: {cpu_backend.unavailable_reason()}")
+    scene = load_dynamic_scene(clip, train_cameras=2)
+    trainer = SpacetimeTrainer(scene, _config(iters=6, densify=True, backend="cpu"))
+    trainer.setup()
+    trainer.add_technique(AbsoluteGradients())
+    fed = []
+    plain = DensifyStats.accumulate
+
+    def spy(self, grad, radii, width, height):
+        r, _ = trainer.last_step_renders[0]
+        fed.append(grad is not None and grad is r.means2d.absgrad)
+        return plain(self, grad, radii, width, height)
+
+    monkeypatch.setattr(DensifyStats, "accumulate", spy)
+    trainer.train()
+    assert fed and all(fed)

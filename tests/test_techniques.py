@@ -438,6 +438,39 @@ def test_count_control_cap_is_respected_and_lowers_the_threshold_when_few():
     assert max(e["num_gaussians"] for e in trainer.densify_log) <= budget.budget
 
 
+def test_absgrad_feeds_densification_the_absolute_statistic_with_a_raised_threshold(monkeypatch):
+    from gsgs_engine.render import cpu_backend
+    from gsgs_engine.train.densify import DensifyStats
+    from gsgs_engine.train.techniques.absgrad import AbsoluteGradients
+    from gsgs_engine.train.techniques.count_control import GaussianBudget
+
+    if not cpu_backend.available():
+        pytest.skip(f"compiled CPU rasteriser unavailable: {cpu_backend.unavailable_reason()}")
+    with pytest.raises(GsgsError, match="threshold"):
+        AbsoluteGradients(threshold=0)
+    trainer = make_trainer(iters=30, densify=True)
+    trainer.config.backend = "cpu"
+    trainer.setup()
+    base = trainer.config.densify_config.grad_threshold
+    absgrad = trainer.add_technique(AbsoluteGradients(threshold=3.0))
+    budget = trainer.add_technique(GaussianBudget())
+    assert trainer.config.densify_config.gradient == "abs"
+    assert trainer.config.densify_config.grad_threshold == pytest.approx(3.0 * base)
+    assert budget.base_threshold == pytest.approx(3.0 * base)  # the count control lowers from the raised base
+    fed = []
+    plain = DensifyStats.accumulate
+
+    def spy(self, grad, radii, width, height):
+        r, _ = trainer.last_step_renders[0]
+        fed.append((grad is r.means2d.absgrad, bool((grad >= r.means2d.grad.abs() * (1 - 1e-5) - 1e-7).all())))
+        return plain(self, grad, radii, width, height)
+
+    monkeypatch.setattr(DensifyStats, "accumulate", spy)
+    trainer.train(until=5)
+    assert fed and all(same and above for same, above in fed)
+    assert absgrad.report()["grad_threshold"] == pytest.approx(3.0 * base)
+
+
 # -- resume, the switch, the trainer untouched ------------------------------------------------
 ALL = "count_control,dropout,binocular:start_fraction=0.3,opacity_decay"
 
@@ -472,7 +505,8 @@ def test_resume_with_guided_dropout_is_bit_identical(tmp_path, guide):
 # 100_000: above the count control's budget (1000 here), which then lowers the cap at install: the checkpoint must
 # record the settings as asked, or the resume is refused as "trained with other settings" (found on a cancelled
 # LLFF protocol cell)
-@pytest.mark.parametrize("max_gaussians,techniques", [(None, ALL), (100_000, ALL), (None, "smoothing," + ALL)])
+@pytest.mark.parametrize("max_gaussians,techniques", [(None, ALL), (100_000, ALL), (None, "smoothing," + ALL),
+                                                       (None, "absgrad," + ALL)])
 def test_resume_with_techniques_is_bit_identical(tmp_path, max_gaussians, techniques):
     straight = _run(tmp_path / "a", max_gaussians=max_gaussians, techniques=techniques)
     interrupted = _run(tmp_path / "b", until=20, max_gaussians=max_gaussians, techniques=techniques)

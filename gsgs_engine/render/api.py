@@ -117,14 +117,21 @@ def select_backend(backend: str, device: torch.device, dtype: torch.dtype | None
 
 
 def rasterize(means2d, conics, colors, opacities, depths, radii, width: int, height: int, background,
-              backend: str = "auto"):
-    """Composite projected Gaussians -> (color [H, W, 3], depth [H, W], alpha [H, W])."""
+              backend: str = "auto", absgrad: bool = False):
+    """Composite projected Gaussians -> (color [H, W, 3], depth [H, W], alpha [H, W]).
+
+    absgrad: the backward also sets `means2d.absgrad` (see `render`); the compiled CPU rasteriser only."""
     if backend == "cuda":
         raise GsgsError("rasterize(): the gsplat backend renders whole scenes; call render(..., backend='cuda')")
     chosen = select_backend(backend, means2d.device, means2d.dtype)
     if chosen in ("cpu", "cpu_legacy"):
         from gsgs_engine.render import cpu_backend
-        return cpu_backend.rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width, height, background)
+        return cpu_backend.rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width, height, background,
+                                         absgrad=absgrad)
+    if absgrad:
+        raise GsgsError(f"absgrad (densifying by AbsGS's absolute gradients) needs the compiled CPU rasteriser or "
+                        f"CUDA; this render runs on the {chosen!r} backend ({means2d.dtype}): build the rasteriser "
+                        "with `python -m gsgs_engine build-ext`, or leave the densification gradient at 'sum'")
     return rasterize_reference(means2d, conics, colors, opacities, depths, radii, width, height, background)
 
 
@@ -151,11 +158,15 @@ def _check_inputs(means, quats, scales, opacities, sh, sh_degree: int, camera: C
 
 def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
            sh: torch.Tensor, camera: Camera, sh_degree: int, background, backend: str = "auto",
-           near: float = DEFAULT_NEAR, far: float = 1e10) -> RenderOutput:
+           near: float = DEFAULT_NEAR, far: float = 1e10, absgrad: bool = False) -> RenderOutput:
     """Render Gaussians (means, quats wxyz, linear scales, opacities in [0, 1], SH [N, K, 3]).
 
     Differentiable w.r.t. every Gaussian input. float16 / bfloat16 inputs are upcast to float32;
     float64 stays float64 (reference backend; the oracle for gradient checks).
+
+    absgrad: after backward, `out.means2d.absgrad` [N, 2] holds each Gaussian's sums over pixels of the pixels'
+    own |dL/dmeans2d| per axis, beside `.grad`, their plain sum (AbsGS's densification statistic: gradients of
+    opposite sign from different pixels do not cancel). The compiled CPU rasteriser and CUDA only.
     """
     if opacities.dim() == 2 and opacities.shape[1] == 1:
         opacities = opacities[:, 0]
@@ -172,7 +183,7 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
         center = torch.as_tensor(camera.center, dtype=dtype, device=device)
         colors = view_colors(means, sh, sh_degree, center)
         color, depth, alpha, radii, means2d = cuda_backend.render_gsplat(
-            means, quats, scales, opacities, colors, camera, background, near, far)
+            means, quats, scales, opacities, colors, camera, background, near, far, absgrad=absgrad)
         return RenderOutput(color=color, depth=depth, alpha=alpha, radii=radii, visible=radii > 0,
                             means2d=means2d, backend=chosen)
 
@@ -185,6 +196,6 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     if means2d.requires_grad:
         means2d.retain_grad()
     color, depth, alpha = rasterize(means2d, proj.conics, proj.colors, opacities, proj.depths, proj.radii,
-                                    camera.width, camera.height, background, backend=chosen)
+                                    camera.width, camera.height, background, backend=chosen, absgrad=absgrad)
     return RenderOutput(color=color, depth=depth, alpha=alpha, radii=proj.radii, visible=proj.visible,
                         means2d=means2d, backend=chosen)

@@ -212,11 +212,12 @@ def _function():
 
     class RasterizeCpu(torch.autograd.Function):
         @staticmethod
-        def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, background):
+        def forward(ctx, means2d, conics, colors, opacities, depths, radii, width, height, background, absgrad):
             ops = _ops()
             (color, depth, alpha, final_T, last, tile_offsets, tile_ranks, entry_slots, order, slot_offset,
              splats) = ops.forward(means2d, conics, colors, opacities, depths, radii, width, height, background)
             ctx.size = (width, height)
+            ctx.absgrad = bool(absgrad)
             ctx.save_for_backward(means2d, conics, colors, opacities, depths, radii, background, final_T, last,
                                   tile_offsets, tile_ranks, entry_slots, order, slot_offset, splats)
             return color, depth, alpha
@@ -236,24 +237,32 @@ def _function():
             grad_color = dense(grad_color, (height, width, 3))
             grad_depth = dense(grad_depth, (height, width))
             grad_alpha = dense(grad_alpha, (height, width))
-            g_means, g_conics, g_colors, g_opac, g_depths = _ops().backward(
+            g_means, g_conics, g_colors, g_opac, g_depths, g_abs = _ops().backward(
                 means2d, conics, colors, opacities, depths, radii, width, height, background, final_T, last,
-                tile_offsets, tile_ranks, entry_slots, order, slot_offset, splats, grad_color, grad_depth, grad_alpha)
+                tile_offsets, tile_ranks, entry_slots, order, slot_offset, splats, grad_color, grad_depth, grad_alpha,
+                ctx.absgrad)
+            if ctx.absgrad:
+                # AbsGS's statistic, where gsplat puts it: the saved input is the caller's own tensor object
+                means2d.absgrad = g_abs
             g_background = None
             if ctx.needs_input_grad[8]:
                 # colour = ... + T_final * background
                 g_background = (grad_color * final_T.unsqueeze(-1)).sum(dim=(0, 1))
-            return g_means, g_conics, g_colors, g_opac, g_depths, None, None, None, g_background
+            return g_means, g_conics, g_colors, g_opac, g_depths, None, None, None, g_background, None
 
     return RasterizeCpu
 
 
-def rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width: int, height: int, background):
+def rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width: int, height: int, background,
+                  absgrad: bool = False):
     """Rasterise projected Gaussians -> (color [H,W,3], depth [H,W], alpha [H,W]); differentiable.
 
     Same arguments and semantics as `rasterize_reference`: depth is sum(z_i alpha_i T_i) (not
     divided by alpha), alpha = 1 - final transmittance, Gaussians with radius 0 are ignored.
     float32 CPU tensors only. Deterministic: the result does not depend on the thread count.
+
+    absgrad: the backward also sets `means2d.absgrad` [N, 2], the sums over pixels of each pixel's own
+    |dL/dmeans2d| per axis (AbsGS; gsplat's attribute of the same name), for densifying by it.
     """
     import torch
 
@@ -267,7 +276,7 @@ def rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width: int,
     radii = radii.detach().to(torch.int32).contiguous()
     return _function().apply(means2d.contiguous(), conics.contiguous(), colors.contiguous(),
                              opacities.contiguous(), depths.contiguous(), radii, width, height,
-                             background.contiguous())
+                             background.contiguous(), bool(absgrad))
 
 
 # -- `python -m gsgs_engine build-ext` -----------------------------------------------------------

@@ -91,16 +91,23 @@ class _ScreenGradHolder:
     see a gradient; a hook on gsplat's tensor forwards the gradient instead.
     """
 
-    def __init__(self, target: torch.Tensor):
+    def __init__(self, target: torch.Tensor, source: torch.Tensor | None = None):
         self.target = target
+        self.source = source  # with absgrad: gsplat's tensor, whose .absgrad its backward has set by now
 
     def __call__(self, grad: torch.Tensor) -> None:
         g = grad[0].detach()
         self.target.grad = g.clone() if self.target.grad is None else self.target.grad + g
+        absgrad = getattr(self.source, "absgrad", None) if self.source is not None else None
+        if absgrad is not None:
+            self.target.absgrad = absgrad[0].detach().clone()
 
 
-def render_gsplat(means, quats, scales, opacities, colors, camera: Camera, background, near: float, far: float):
-    """-> (color [H, W, 3], depth [H, W], alpha [H, W], radii [N] int32, means2d [N, 2])."""
+def render_gsplat(means, quats, scales, opacities, colors, camera: Camera, background, near: float, far: float,
+                  absgrad: bool = False):
+    """-> (color [H, W, 3], depth [H, W], alpha [H, W], radii [N] int32, means2d [N, 2]).
+
+    absgrad: gsplat's own AbsGS statistic, copied to the returned means2d's `.absgrad` after backward."""
     import gsplat
 
     viewmats, Ks = camera_to_gsplat(camera, means.device, means.dtype)
@@ -109,6 +116,7 @@ def render_gsplat(means, quats, scales, opacities, colors, camera: Camera, backg
         viewmats=viewmats, Ks=Ks, width=camera.width, height=camera.height,
         near_plane=near, far_plane=far, eps2d=LOW_PASS_DILATION, sh_degree=None, packed=False,
         tile_size=TILE_SIZE, backgrounds=background[None], render_mode="RGB+D", rasterize_mode="classic",
+        absgrad=bool(absgrad),
     )
     color = render_colors[0, ..., :3]
     depth = render_colors[0, ..., 3]  # "D": accumulated sum z_i alpha_i T_i, not normalised (eq. 7)
@@ -119,5 +127,5 @@ def render_gsplat(means, quats, scales, opacities, colors, camera: Camera, backg
     gs_means2d = meta["means2d"]
     means2d = gs_means2d[0].detach().clone().requires_grad_(gs_means2d.requires_grad)
     if gs_means2d.requires_grad:
-        gs_means2d.register_hook(_ScreenGradHolder(means2d))
+        gs_means2d.register_hook(_ScreenGradHolder(means2d, gs_means2d if absgrad else None))
     return color, depth, alpha, radii.to(torch.int32), means2d

@@ -30,6 +30,7 @@ class DensifyConfig:
     max_screen_size: float | None = None  # pixels; None = off (3DGS resets radii before testing, a no-op)
     split_factor: int = 2
     max_gaussians: int = 1_000_000
+    gradient: str = "sum"  # "sum": |sum_p dL_p/dmeans2d| (3DGS); "abs": sum_p |dL_p/dmeans2d| (AbsGS; techniques/absgrad)
 
 
 class DensifyStats:

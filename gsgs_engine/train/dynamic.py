@@ -182,6 +182,7 @@ class SpacetimeTrainer(Trainer):
         super().__init__(scene, config, *args, **kwargs)
         views_by_frame(self.train_views)  # every training view must carry a time
         self._pending_state: dict | None = None
+        self._densify = bool(config.densify)  # what the step densifies by (the base loop's is off during a step)
 
     # -- model, optimiser, rendering ------------------------------------------------------------
     def setup(self, resume: bool = False, initial_model: GaussianModel | None = None,
@@ -233,10 +234,13 @@ class SpacetimeTrainer(Trainer):
                 "sh": self.model.sh(degree), "sh_degree": degree}
 
     # -- the step: base loop without its 3D densification, then the 4D one ---------------------------
+    def gathers_densify_statistics(self, step: int) -> bool:
+        return self._densify and step <= self.schedule.densify_until
+
     def train_step(self) -> bool:
         cfg, sched = self.config, self.schedule
         step = self.step + 1
-        densify = cfg.densify
+        densify = self._densify = cfg.densify
         cfg.densify = False  # the base loop's densification handles only 3D parameters
         try:
             ok = super().train_step()
@@ -247,8 +251,7 @@ class SpacetimeTrainer(Trainer):
             return ok
         t0 = time.perf_counter()
         for r, cam in renders:
-            self.stats.accumulate(r.means2d.grad if r.means2d is not None else None, r.radii.detach(),
-                                  cam.width, cam.height)
+            self.stats.accumulate(self.densify_gradient(r), r.radii.detach(), cam.width, cam.height)
         if sched.is_densify_step(step):
             info = densify_and_prune_4d(self.model, self.optimizer, self.stats, self.extent, cfg.densify_config,
                                         prune_large=step > sched.opacity_reset_every, generator=self.torch_gen,

@@ -244,6 +244,7 @@ class Trainer:
                                                 "densify": 0.0, "checkpoint": 0.0, "evaluate": 0.0}
         self.step = 0
         self.nan_steps_skipped = 0
+        self._step_absgrad = False  # this step densifies by AbsGS statistic (techniques/absgrad.py)
         self.nan_causes: dict[str, int] = {}
         self.train_seconds = 0.0
         self.last_losses: dict[str, float] = {}
@@ -372,8 +373,12 @@ class Trainer:
                       sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
                       backend=self.config.backend, near=self.config.novel_view_near)
 
-    def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None):
-        """A supervised render of this step: the techniques' `render_inputs` hooks may rewrite its inputs."""
+    def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None,
+                            absgrad: bool | None = None):
+        """A supervised render of this step: the techniques' `render_inputs` hooks may rewrite its inputs.
+
+        absgrad: compute AbsGS's statistic in its backward (None: when this step densifies by it, i.e. for the
+        renders that may feed densification; a technique's render that never does passes False)."""
         from gsgs_engine.render import render
 
         inputs = self.gaussians_for(camera)
@@ -382,7 +387,7 @@ class Trainer:
                 inputs = t.render_inputs(ctx, inputs)
         return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                       sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend)
+                      backend=self.config.backend, absgrad=self._step_absgrad if absgrad is None else absgrad)
 
     # -- the loop -------------------------------------------------------------------------------
     def _next_view(self) -> int:
@@ -436,6 +441,18 @@ class Trainer:
             self._reduced_targets[key] = resize_area(target, camera.height, camera.width)
         return camera, self._reduced_targets[key]
 
+    def gathers_densify_statistics(self, step: int) -> bool:
+        """Whether `step`'s renders feed the densification statistics (the 4D trainer gathers its own)."""
+        return self.config.densify and step <= self.schedule.densify_until
+
+    def densify_gradient(self, out) -> torch.Tensor | None:
+        """A render's screen-space statistic after backward: its means2d's gradient, or with the densification
+        gradient "abs" (techniques/absgrad.py) the per-pixel absolute sums its backward computed."""
+        means2d = getattr(out, "means2d", None)
+        if means2d is None:
+            return None
+        return getattr(means2d, "absgrad", None) if self._step_absgrad else means2d.grad
+
     def train_step(self) -> bool:
         """One optimisation step; False when it was skipped for a non-finite loss or gradient."""
         model, cfg, sched = self.model, self.config, self.schedule
@@ -448,6 +465,8 @@ class Trainer:
 
         for t in self.techniques:
             t.before_step(self, step)
+        densifying = cfg.densify and step <= sched.densify_until
+        self._step_absgrad = self.gathers_densify_statistics(step) and cfg.densify_config.gradient == "abs"
         t0 = time.perf_counter()
         i = self._next_view()
         bg = self._step_background()
@@ -490,11 +509,9 @@ class Trainer:
             check_skipped(self.nan_steps_skipped, step, self.config.iters, self.nan_causes)
             return False
 
-        densifying = cfg.densify and step <= sched.densify_until
         if densifying:
             for r, cam in ctx.renders:
-                grad = r.means2d.grad if getattr(r, "means2d", None) is not None else None
-                self.stats.accumulate(grad, r.radii.detach(), cam.width, cam.height)
+                self.stats.accumulate(self.densify_gradient(r), r.radii.detach(), cam.width, cam.height)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
         t3 = time.perf_counter()

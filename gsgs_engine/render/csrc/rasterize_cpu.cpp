@@ -83,6 +83,7 @@ constexpr int kVecs = kTilePixels / kLanes;
 GSGS_INLINE vf splat(float v) { return vf{} + v; }
 GSGS_INLINE vi splat_i(int32_t v) { return vi{} + v; }
 GSGS_INLINE vf select(vi mask, vf a, vf b) { return (vf)(((vi)a & mask) | ((vi)b & ~mask)); }
+GSGS_INLINE vf vabs(vf a) { return (vf)((vi)a & splat_i(0x7fffffff)); }
 GSGS_INLINE vi select_i(vi mask, vi a, vi b) { return (a & mask) | (b & ~mask); }
 GSGS_INLINE bool any(vi mask) {
   uint64_t q[4];
@@ -418,9 +419,10 @@ GSGS_INLINE void reach(const Splat& s, int px0, int py0, int cols, int rows, int
     int32_t *out_last
 #define GSGS_TILE_ARGS_B const Splat *splats, const int32_t *ranks, const int32_t *slots, int count, int px0, \
     int py0, int width, int height, const float *background, const float *final_T, const int32_t *last_in, \
-    const float *grad_color, const float *grad_depth, const float *grad_alpha, bool with_depth, float *entry_grad
+    const float *grad_color, const float *grad_depth, const float *grad_alpha, bool with_depth, float *entry_grad, \
+    float *abs_grad
 #define GSGS_TILE_PASS_B splats, ranks, slots, count, px0, py0, width, height, background, final_T, last_in, \
-    grad_color, grad_depth, grad_alpha, with_depth, entry_grad
+    grad_color, grad_depth, grad_alpha, with_depth, entry_grad, abs_grad
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 #define GSGS_TILE_AVX 1
 #define GSGS_TILE_AVX512 1
@@ -751,12 +753,12 @@ ForwardResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& con
 }
 
 // -> grad means2d [N,2], conics [N,3], colors [N,3], opacities [N], depths [N].
-std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize_backward(
+std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize_backward(
     const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors, const at::Tensor& opacities,
     const at::Tensor& depths, const at::Tensor& radii, int64_t width, int64_t height, const at::Tensor& background,
     const at::Tensor& final_T, const at::Tensor& last, const at::Tensor& tile_offsets, const at::Tensor& tile_ranks,
     const at::Tensor& entry_slots, const at::Tensor& order, const at::Tensor& slot_offset, const at::Tensor& splat_t,
-    const at::Tensor& grad_color, const at::Tensor& grad_depth, const at::Tensor& grad_alpha) {
+    const at::Tensor& grad_color, const at::Tensor& grad_depth, const at::Tensor& grad_alpha, bool absgrad) {
   check_inputs(means2d, conics, colors, opacities, depths, radii, width, height, background);
   const int W = static_cast<int>(width), H = static_cast<int>(height);
   const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
@@ -789,6 +791,8 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   const int64_t n_entries = tile_ranks.numel();
   // Every record is written exactly once by its tile, so the buffer needs no zeroing (~40 bytes per entry).
   float* const records = reusable_buffer<float, 2>(static_cast<size_t>(n_entries) * kGradFields);
+  // With absgrad, AbsGS's statistic: 2 floats per entry (|dL_p/dmx|, |dL_p/dmy| summed over the entry's pixels).
+  float* const abs_records = absgrad ? reusable_buffer<float, 3>(static_cast<size_t>(n_entries) * 2) : nullptr;
   const float* bg = background.data_ptr<float>();
   const float* T_p = final_T.data_ptr<float>();
   const int32_t* last_p = last.data_ptr<int32_t>();
@@ -802,7 +806,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   for_each_tile(tile_schedule(offsets, n_tiles), [&](int32_t t) {
     const int tx = t % tiles_x, ty = t / tiles_x;
     backward_tile(splats, ranks + offsets[t], slots + offsets[t], offsets[t + 1] - offsets[t], tx * kTile,
-                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, records);
+                  ty * kTile, W, H, bg, T_p, last_p, gc, gd, ga, with_depth, records, abs_records);
   });
 
   lap(gsgs_phase::kRasterBackward);
@@ -811,7 +815,9 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
   at::Tensor g_colors = at::zeros({n, 3}, at::kFloat);
   at::Tensor g_opac = at::zeros({n}, at::kFloat);
   at::Tensor g_depth = at::zeros({n}, at::kFloat);
+  at::Tensor g_abs = at::zeros({absgrad ? n : 0, 2}, at::kFloat);
   float* gm = g_means.data_ptr<float>();
+  float* gabs = g_abs.data_ptr<float>();
   float* gk = g_conics.data_ptr<float>();
   float* gcol = g_colors.data_ptr<float>();
   float* go = g_opac.data_ptr<float>();
@@ -836,10 +842,19 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> rasterize
       gcol[3 * g + 2] = sum[7];
       go[g] = sum[8];
       gz[g] = sum[9];
+      if (abs_records != nullptr) {
+        float ax = 0.0f, ay = 0.0f;
+        for (int32_t e = soff[s]; e < soff[s + 1]; ++e) {
+          ax += abs_records[2 * static_cast<int64_t>(e)];
+          ay += abs_records[2 * static_cast<int64_t>(e) + 1];
+        }
+        gabs[2 * g] = ax;
+        gabs[2 * g + 1] = ay;
+      }
     }
   });
   lap(gsgs_phase::kBackwardReduce);
-  return {g_means, g_conics, g_colors, g_opac, g_depth};
+  return {g_means, g_conics, g_colors, g_opac, g_depth, g_abs};
 }
 
 }  // namespace
@@ -866,6 +881,6 @@ TORCH_LIBRARY(gsgs_raster_cpu, m) {
       "backward(Tensor means2d, Tensor conics, Tensor colors, Tensor opacities, Tensor depths, Tensor radii, "
       "int width, int height, Tensor background, Tensor final_T, Tensor last, Tensor tile_offsets, "
       "Tensor tile_ranks, Tensor entry_slots, Tensor order, Tensor slot_offset, Tensor splats, Tensor grad_color, "
-      "Tensor grad_depth, Tensor grad_alpha) -> (Tensor, Tensor, Tensor, Tensor, Tensor)",
+      "Tensor grad_depth, Tensor grad_alpha, bool absgrad=False) -> (Tensor, Tensor, Tensor, Tensor, Tensor, Tensor)",
       &rasterize_backward);
 }

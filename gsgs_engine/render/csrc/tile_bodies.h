@@ -147,9 +147,15 @@ void forward_tile(GSGS_TILE_ARGS_F) {
 // Only g . S_i enters (g the pixel's colour gradient, and its depth gradient with the depth: a 3- or 4-vector that
 // is constant over the list), so a pixel carries that one dot product GS instead of the colour sums S r, g, b (and
 // S z): GS_{i-1} = GS_i + a_i (g . c_i - GS_i). One state vector to load, blend and store a step, not three or four.
-template <bool kWithDepth>
+//
+// With kAbsGrad (AbsGS's densification statistic) each entry also gets the sums over its pixels of the absolute
+// per-pixel screen-space gradient, |dL_p/dmx| and |dL_p/dmy|, in abs_grad (2 floats per entry): per pixel
+// dL_p/dm = -(A q dx + B q dy, B q dx + C q dy), where the plain gradient's row moments sum them before the sign
+// could be taken. Compiled in only for the renders that ask for it (the training view's, when densifying by it).
+template <bool kWithDepth, bool kAbsGrad>
 void backward_tile_body(GSGS_TILE_ARGS_B) {
   (void)with_depth;  // kWithDepth: the depth terms compiled in or out, not tested per step
+  (void)abs_grad;
   vf T[kVecs], GS[kVecs], gr[kVecs], gg[kVecs], gb[kVecs], gz[kVecs], K[kVecs];
   vi last[kVecs];
   const int rows = std::min(kTile, height - py0);
@@ -184,6 +190,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
   // Entries behind every pixel's last contributor (transmittance spent) get a zero record, no work.
   for (int j = count - 1; j >= max_last; --j) {
     std::memset(entry_grad + static_cast<int64_t>(slots[j]) * kGradFields, 0, kGradFields * sizeof(float));
+    if (kAbsGrad) abs_grad[2 * static_cast<int64_t>(slots[j])] = abs_grad[2 * static_cast<int64_t>(slots[j]) + 1] = 0;
   }
   const int first = std::min(count, max_last) - 1;
   for (int j = first; j >= std::max(first - kFetchAhead + 1, 0); --j) fetch_splat(splats + ranks[j]);
@@ -200,6 +207,7 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
     reach(s, px0, py0, cols, rows, &r_lo, &r_hi, &v_lo, &v_hi);
     vf acc[kGradFields];
     for (int f = 0; f < kGradFields; ++f) acc[f] = splat(0.0f);
+    vf abs_x = splat(0.0f), abs_y = splat(0.0f);  // kAbsGrad only (otherwise never read: compiled out)
     bool touched = false;
     const vi position = splat_i(j);
     ColumnTerms col[kVecPerRow];
@@ -242,6 +250,11 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
         const vf qx = q * dx;
         row_q += q;
         row_qx += qx;
+        if (kAbsGrad) {  // this step's pixels' own mean gradients (q is 0 on the lanes j did not blend into)
+          const vf qy = q * dy;
+          abs_x += vabs(s.A * qx + s.B * qy);
+          abs_y += vabs(s.B * qx + s.C * qy);
+        }
         acc[2] += qx * dx;
         acc[5] += gr[v] * w;
         acc[6] += gg[v] * w;
@@ -275,15 +288,25 @@ void backward_tile_body(GSGS_TILE_ARGS_B) {
     } else {
       std::memset(record, 0, kGradFields * sizeof(float));
     }
+    if (kAbsGrad) {
+      abs_grad[2 * static_cast<int64_t>(slots[j])] = touched ? hsum(abs_x) : 0.0f;
+      abs_grad[2 * static_cast<int64_t>(slots[j]) + 1] = touched ? hsum(abs_y) : 0.0f;
+    }
   }
 }
 
 // The backward with or without the depth terms (a training step has no depth loss), each compiled on its own so
 // the per-step loop holds no test of it and the registers go to the terms it has.
 void backward_tile(GSGS_TILE_ARGS_B) {
-  if (with_depth) {
-    backward_tile_body<true>(GSGS_TILE_PASS_B);
+  if (abs_grad != nullptr) {
+    if (with_depth) {
+      backward_tile_body<true, true>(GSGS_TILE_PASS_B);
+    } else {
+      backward_tile_body<false, true>(GSGS_TILE_PASS_B);
+    }
+  } else if (with_depth) {
+    backward_tile_body<true, false>(GSGS_TILE_PASS_B);
   } else {
-    backward_tile_body<false>(GSGS_TILE_PASS_B);
+    backward_tile_body<false, false>(GSGS_TILE_PASS_B);
   }
 }

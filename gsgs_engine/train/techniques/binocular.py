@@ -232,7 +232,7 @@ class BinocularConsistency(Technique):
         shifted = shifted_camera(camera, baseline)
         if self.scale != 1.0:
             shifted = shifted.scaled(self.scale)
-        out = tr.render_for_training(ctx, shifted, ctx.background)
+        out = tr.render_for_training(ctx, shifted, ctx.background, absgrad=False)
         z = surface_depth(depth, alpha)
         fused = binocular_l1(camera, z, shifted, out.color, target, alpha, MIN_OPAQUE)
         if fused is not None:  # the compiled warp + masked L1 (same value to float rounding; train/fused_binocular.py)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import inspect
 
 from gsgs_engine import GsgsError
+from gsgs_engine.train.techniques.absgrad import AbsoluteGradients
 from gsgs_engine.train.techniques.binocular import BinocularConsistency
 from gsgs_engine.train.techniques.coregularisation import CoRegularisation
 from gsgs_engine.train.techniques.count_control import GaussianBudget
@@ -23,6 +24,8 @@ from gsgs_engine.train.techniques.smoothing import SmoothingFilter
 
 #: name -> (class, one line for --help); the order is the order techniques are added in
 TECHNIQUES = {
+    "absgrad": (AbsoluteGradients, "densify by the pixels' absolute screen-space gradients (AbsGS; threshold=4 x "
+                                   "3DGS's, gsplat's 0.0008); the compiled CPU rasteriser or CUDA"),
     "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
     "smoothing": (SmoothingFilter, "Mip-Splatting's 3D smoothing filter: no Gaussian finer than its finest training "
                                    "pixel (variance=0.2 pixels^2), baked into the model at the last step"),

@@ -90,7 +90,7 @@ class _Mirror(Technique):
         camera = self.owner.current_camera
         if camera is None:
             return None
-        out = ctx.trainer.render_for_training(ctx, camera)
+        out = ctx.trainer.render_for_training(ctx, camera, absgrad=False)
         with torch.no_grad():
             target = self.owner.trainer.render(camera).color
         return photometric_terms(out.color, target, ctx.trainer.config.lambda_dssim, weight=self.owner.weight,
@@ -149,7 +149,7 @@ class CoRegularisation(Technique):
             return None
         camera = self.pool[int(ctx.trainer.np_rng.integers(len(self.pool)))]
         self.current_camera = camera
-        out = ctx.trainer.render_for_training(ctx, camera)
+        out = ctx.trainer.render_for_training(ctx, camera, absgrad=False)
         with torch.no_grad():
             target = self.partner.render(camera).color
         return photometric_terms(out.color, target, ctx.trainer.config.lambda_dssim, weight=self.weight,
