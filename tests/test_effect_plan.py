@@ -255,8 +255,9 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     front = plan(make_scene(n_train=4, forward=True))
     assert front["rig"].value == "forward-facing" and front["techniques"].value == list(AUTO_FORWARD_TECHNIQUES)
     assert "density-guided" in front["techniques"].reason
-    for recipe in (AUTO_FORWARD_TECHNIQUES, AUTO_ORBIT_TECHNIQUES):  # the same techniques, one option changed
-        assert [t.split(":")[0] for t in recipe] == list(AUTO_TECHNIQUES)
+    for recipe in (AUTO_FORWARD_TECHNIQUES, AUTO_ORBIT_TECHNIQUES):  # the same techniques, options changed, and
+        assert [t.split(":")[0] for t in recipe if not t.startswith("absgrad")] == list(AUTO_TECHNIQUES)  # AbsGS's
+    assert AUTO_FORWARD_TECHNIQUES[0] == "absgrad" and "absolute gradients" in front["techniques"].reason  # session 29
     assert apply_effect_plan(front, TrainConfig(), AUTO)[1].techniques == list(AUTO_FORWARD_TECHNIQUES)
     assert "binocular:scale=0.5" in AUTO_FORWARD_TECHNIQUES  # the shifted view at half size (measured at 1000 steps)
     from gsgs_engine.effect_plan import AUTO_FORWARD_LONG_TECHNIQUES

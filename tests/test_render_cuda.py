@@ -103,3 +103,25 @@ def test_cuda_hard_cases_stay_finite(cuda_device):
     half = [p.to(cuda_device, torch.float16) for p in (means, quats, scales, opacities, sh)]
     out = render(*half, _camera(), 0, torch.ones(3, device=cuda_device), backend="cuda")
     assert out.color.dtype == torch.float32 and torch.isfinite(out.color).all()
+
+
+def test_cuda_absgrad_matches_the_compiled_cpu_one(cuda_device):
+    """gsplat's own AbsGS statistic reaches our means2d as `.absgrad`, and agrees with the compiled CPU kernel's."""
+    from gsgs_engine.render import cpu_backend
+
+    params = _scene(400, 5)
+    bg = torch.tensor([0.1, 0.3, 0.6])
+    got = {}
+    backends = (("cuda", cuda_device),) + ((("cpu", torch.device("cpu")),) if cpu_backend.available() else ())
+    for backend, dev in backends:
+        leaves = [p.clone().to(dev).requires_grad_(True) for p in params]
+        out = render(*leaves, _camera(), 1, bg.to(dev), backend=backend, absgrad=True)
+        weights = torch.linspace(-1.0, 1.0, out.color.numel(), device=dev).reshape(out.color.shape)
+        (out.color * weights).sum().backward()
+        absgrad = out.means2d.absgrad
+        assert absgrad is not None and absgrad.shape == (400, 2) and torch.isfinite(absgrad).all()
+        assert bool((absgrad >= out.means2d.grad.abs() * (1 - 1e-4) - 1e-6).all())
+        got[backend] = absgrad.detach().cpu()
+    if "cpu" in got:
+        rel = float((got["cpu"] - got["cuda"]).norm() / got["cpu"].norm().clamp_min(1e-12))
+        assert rel < 0.05, f"absgrad: CPU and CUDA differ by {rel:.3g} (relative)"

@@ -471,6 +471,22 @@ def test_absgrad_feeds_densification_the_absolute_statistic_with_a_raised_thresh
     assert absgrad.report()["grad_threshold"] == pytest.approx(3.0 * base)
 
 
+def test_absgrad_on_the_reference_rasteriser_keeps_the_plain_statistic_and_says_so():
+    from gsgs_engine.train.techniques.absgrad import AbsoluteGradients
+
+    logged = []
+    trainer = make_trainer(iters=4, densify=True)
+    trainer.config.backend = "reference"
+    trainer.log = logged.append
+    trainer.setup()
+    base = trainer.config.densify_config.grad_threshold
+    absgrad = trainer.add_technique(AbsoluteGradients())
+    assert trainer.config.densify_config.gradient == "sum" and trainer.config.densify_config.grad_threshold == base
+    trainer.train()  # no render asks the reference rasteriser for it
+    assert trainer.step == 4 and any("absgrad" in m and "plain gradient" in m for m in logged)
+    assert absgrad.report()["statistic"].startswith("off:")
+
+
 # -- resume, the switch, the trainer untouched ------------------------------------------------
 ALL = "count_control,dropout,binocular:start_fraction=0.3,opacity_decay"
 
