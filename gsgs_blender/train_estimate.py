@@ -71,6 +71,10 @@ ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
 # at 1000 steps trained in 160.1 s that way against 137.8 s (means of seeds 0-2 of the 3-seed grid, 2026-11-27, one
 # cell at a time with kernel builds beside some cells: not a quiet pair; docs/speed.md).
 FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
+# ... and the forward-facing recipe of shorter schedules densifies by absolute gradients since session 29 (AbsGS;
+# the compiled backward computes the statistic): flower auto steps 1-1000 172.9 / 175.9 s before, 184.0 / 186.3 s
+# with it (two pairs alternating on a quiet machine, 2026-11-29; docs/speed.md, "Session 29").
+FORWARD_ABSGRAD_FACTOR = (184.0 + 186.3) / (172.9 + 175.9)
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 TIMINGS_FILE = "train_timings.jsonl"
@@ -125,6 +129,8 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
         seconds *= ORBIT_EVERY_STEP_FACTOR
     if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... at full size
         seconds *= FORWARD_FULL_VIEW_FACTOR
+    elif kind == "forward" and generator == "auto":  # ... densified by absolute gradients
+        seconds *= FORWARD_ABSGRAD_FACTOR
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
     per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT

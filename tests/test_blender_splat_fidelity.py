@@ -152,7 +152,9 @@ def test_training_estimate_reproduces_its_reference_runs():
 
     est = train_estimate.estimate_seconds
     assert est(1000, 504, 378, 1.0, "none") == pytest.approx(88.1)  # LLFF flower plain, this build
-    assert est(1000, 504, 378, 1.0, "auto") == pytest.approx(142.3)  # flower auto (forward-facing recipe)
+    # flower auto (forward-facing recipe; since session 29 densified by absolute gradients, ~1.06x)
+    assert est(1000, 504, 378, 1.0, "auto") == pytest.approx(142.3 * train_estimate.FORWARD_ABSGRAD_FACTOR)
+    assert 1.03 < train_estimate.FORWARD_ABSGRAD_FACTOR < 1.1
     assert est(1000, 504, 378, 1.0, "warp") == pytest.approx(142.3)
     # 3000 steps or more of the forward-facing recipe: the shifted view at full size (effect_plan)
     assert est(3000, 504, 378, 1.0, "auto") == pytest.approx(3 * 142.3 * 160.1 / 137.8)
