@@ -59,6 +59,7 @@ ABLATION: dict[str, dict] = {
     "dense + coregularisation": {"prior": "none", "init": "mvs", "techniques": ["coregularisation"]},
     "dense + exposure": {"prior": "none", "init": "mvs", "techniques": ["exposure"]},
     "dense + smoothing": {"prior": "none", "init": "mvs", "techniques": ["smoothing"]},
+    "dense + absgrad": {"prior": "none", "init": "mvs", "techniques": ["absgrad"]},
     "dense + depth regulariser": {"prior": "depth", "init": "mvs", "prior_settings": {"depth_source": "sparse"}},
     "auto": VARIANTS["auto"],
 }
