@@ -1,20 +1,18 @@
 """AbsGS's densification statistic: the compiled rasteriser's per-pixel absolute screen-space gradients.
 
 The oracle is test_render_cpu's float64 transcription of the compositing, with each Gaussian's centre given to every
-pixel as its own leaf, so one backward yields every pixel's own dL_p/dmeans2d; their absolute values summed over the
-pixels are what `means2d.absgrad` must hold.
+pixel as its own leaf (its `centres`), so one backward yields every pixel's own dL_p/dmeans2d; their absolute values
+summed over the pixels are what `means2d.absgrad` must hold.
 """
 
 from __future__ import annotations
-
-import math
 
 import pytest
 import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.render import cpu_backend
-from test_render_cpu import TILE, random_scene
+from test_render_cpu import oracle, random_scene
 
 SCENES = [
     dict(seed=0, n=40, width=16, height=12),
@@ -41,46 +39,12 @@ def _weights(shape_hw, seed):
 
 def oracle_absgrad(scene, weights):
     """(sum_p |dL_p/dmeans2d| [N, 2], dL/dmeans2d [N, 2]) in float64, L = sum_p <weights, (colour, depth, alpha)>."""
-    means2d, conics, colors = scene["means2d"], scene["conics"], scene["colors"]
-    opacities, depths, radii = scene["opacities"], scene["depths"], scene["radii"]
-    width, height, background = scene["width"], scene["height"], scene["background"]
-    n, dt = means2d.shape[0], torch.float64
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=dt) + 0.5, torch.arange(width, dtype=dt) + 0.5, indexing="ij")
-    tile_x = torch.div(torch.arange(width), TILE, rounding_mode="floor")[None, :].expand(height, width)
-    tile_y = torch.div(torch.arange(height), TILE, rounding_mode="floor")[:, None].expand(height, width)
-    # every pixel's own copy of every centre: its gradient is that pixel's dL_p/dmeans2d
-    own = means2d.to(dt)[:, None, None, :].expand(n, height, width, 2).clone().requires_grad_(True)
-    T = torch.ones(height, width, dtype=dt)
-    color = torch.zeros(height, width, 3, dtype=dt)
-    depth = torch.zeros(height, width, dtype=dt)
-    active = torch.ones(height, width, dtype=torch.bool)
-    for i in sorted(range(n), key=lambda i: (float(depths[i]), i)):
-        r = int(radii[i])
-        if r <= 0:
-            continue
-        mx, my = float(means2d[i, 0]), float(means2d[i, 1])
-        tx0, tx1 = math.floor((mx - r) / 16), math.floor((mx + r) / 16)
-        ty0, ty1 = math.floor((my - r) / 16), math.floor((my + r) / 16)
-        in_tiles = (tile_x >= tx0) & (tile_x <= tx1) & (tile_y >= ty0) & (tile_y <= ty1)
-        dx = own[i, ..., 0] - xs
-        dy = own[i, ..., 1] - ys
-        a, b, c = (float(v) for v in conics[i])
-        power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-        alpha = torch.clamp(float(opacities[i]) * torch.exp(power), max=0.99)
-        valid = in_tiles & active & (power <= 0) & (alpha >= 1.0 / 255.0)
-        test_T = T * (1 - alpha)
-        stop = valid & (test_T < 1e-4)
-        add = valid & ~stop
-        w = torch.where(add, alpha * T, torch.zeros((), dtype=dt))
-        color = color + w[..., None] * colors[i].to(dt)
-        depth = depth + w * float(depths[i])
-        T = torch.where(add, test_T, T)
-        active = active & ~stop
-    color = color + T[..., None] * background.to(dt)
+    n, height, width = scene["means2d"].shape[0], scene["height"], scene["width"]
+    own = scene["means2d"].to(torch.float64)[:, None, None, :].expand(n, height, width, 2).clone().requires_grad_(True)
+    color, depth, alpha = oracle(**scene, centres=own)
     wc, wd, wa = weights
-    loss = (color * wc).sum() + (depth * wd).sum() + ((1 - T) * wa).sum()
-    loss.backward()
-    per_pixel = own.grad  # [N, H, W, 2]
+    ((color * wc).sum() + (depth * wd).sum() + (alpha * wa).sum()).backward()
+    per_pixel = own.grad  # [N, H, W, 2]: each pixel's own gradient of every centre
     return per_pixel.abs().sum(dim=(1, 2)), per_pixel.sum(dim=(1, 2))
 
 
@@ -167,6 +131,10 @@ def test_render_with_absgrad_through_projection_and_on_the_reference_backend():
         assert absgrad.shape == (150, 2) and bool(torch.isfinite(absgrad).all())
         assert bool((absgrad[out.radii == 0] == 0).all()) and bool((absgrad[out.radii > 0] > 0).any())
         assert bool((absgrad >= out.means2d.grad.abs() * (1 - 1e-5) - 1e-7).all())
+        with pytest.raises(GsgsError, match="contiguous"):
+            scene = random_scene(**SCENES[0])
+            scene["means2d"] = scene["means2d"].t().contiguous().t()  # same values, not contiguous
+            cpu_backend.rasterize_cpu(**scene, absgrad=True)
     x = [t.clone().requires_grad_(True) for t in params]
     with pytest.raises(GsgsError, match="absgrad"):
         render(*x, camera, sh_degree=3, background=(1.0, 1.0, 1.0), backend="reference", absgrad=True)

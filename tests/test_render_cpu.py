@@ -53,9 +53,10 @@ def random_scene(seed, n, width, height, equal_depth_groups=0, opaque_fraction=0
                 depths=f(depths), radii=radii, width=width, height=height, background=f(background))
 
 
-def oracle(means2d, conics, colors, opacities, depths, radii, width, height, background):
+def oracle(means2d, conics, colors, opacities, depths, radii, width, height, background, centres=None):
     """Direct transcription of the semantics in float64 torch (autograd): per Gaussian in
-    (depth, index) order, every pixel of the tiles it touches, front to back."""
+    (depth, index) order, every pixel of the tiles it touches, front to back. `centres` [N, H, W, 2] (float64):
+    every pixel's own copy of every centre (binning still reads means2d), so its gradient is each pixel's own."""
     n = means2d.shape[0]
     dt = torch.float64
     ys, xs = torch.meshgrid(torch.arange(height, dtype=dt) + 0.5, torch.arange(width, dtype=dt) + 0.5, indexing="ij")
@@ -74,8 +75,9 @@ def oracle(means2d, conics, colors, opacities, depths, radii, width, height, bac
         tx0, tx1 = math.floor((mx - r) / 16), math.floor((mx + r) / 16)
         ty0, ty1 = math.floor((my - r) / 16), math.floor((my + r) / 16)
         in_tiles = (tile_x >= tx0) & (tile_x <= tx1) & (tile_y >= ty0) & (tile_y <= ty1)
-        dx = means2d[i, 0].to(dt) - xs
-        dy = means2d[i, 1].to(dt) - ys
+        centre = means2d[i].to(dt) if centres is None else centres[i]
+        dx = centre[..., 0] - xs
+        dy = centre[..., 1] - ys
         a, b, c = conics[i, 0].to(dt), conics[i, 1].to(dt), conics[i, 2].to(dt)
         power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
         alpha = torch.clamp(opacities[i].to(dt) * torch.exp(power), max=0.99)

@@ -273,6 +273,8 @@ def rasterize_cpu(means2d, conics, colors, opacities, depths, radii, width: int,
     if not available():
         raise GsgsError(f"the compiled CPU rasteriser is unavailable ({unavailable_reason()}); "
                         "run `python -m gsgs_engine build-ext` to see the build log, or use backend='reference'")
+    if absgrad and not means2d.is_contiguous():  # .contiguous() would copy it, and the statistic land on the copy
+        raise GsgsError("rasterize_cpu: absgrad needs a contiguous means2d (it is set on the tensor passed in)")
     radii = radii.detach().to(torch.int32).contiguous()
     return _function().apply(means2d.contiguous(), conics.contiguous(), colors.contiguous(),
                              opacities.contiguous(), depths.contiguous(), radii, width, height,
