@@ -97,6 +97,9 @@ def test_a_ray_client_server_that_dies_while_starting_is_retried(capsys):
     with pytest.raises(RuntimeError, match="refused"):
         _init_with_client_retries(other, "ray://127.0.0.1:10001", None, attempts=3, wait_s=0)
     assert other.calls == 1
+    zombie = _FlakyRay(fails=1, message="psutil.ZombieProcess: PID still exists but it's a zombie (pid=29824)")
+    _init_with_client_retries(zombie, "ray://127.0.0.1:10001", None, attempts=3, wait_s=0)  # the head's race
+    assert zombie.calls == 2
     direct = _FlakyRay(fails=1)  # HOST:PORT (no Ray Client server) is not retried either
     with pytest.raises(RuntimeError):
         _init_with_client_retries(direct, "127.0.0.1:6380", None, attempts=3, wait_s=0)
@@ -245,7 +248,7 @@ def test_train_on_the_cluster_equals_the_local_run(ray_cluster, tmp_path):
 def _client_server_logs(logs: Path) -> str:
     """The head's per-driver Ray Client server logs, for a failure message."""
     return "".join(f"\n--- {p.name}:\n{p.read_text(errors='replace')[-1500:]}"
-                   for p in sorted(logs.glob("ray_client_server_*.err")))
+                   for p in sorted(logs.glob("ray_client_server*.err")) + sorted(logs.glob("ray_client_server_*.out")))
 
 
 def _wait_for(predicate, timeout: float, what: str) -> None:
