@@ -1,28 +1,29 @@
 """A training time estimate the Train panel states before a job starts.
 
 Scaled from `gsgs bench sparse` protocol cells run on the project's 2-core CPU machine (seed 0, 1000 steps, two
-threads, one after another with nothing else running, 2026-11-27 03:06-03:13, this build), one reference per recipe
-the engine can run, because they differ more than any single factor allows:
-  - plain 3DGS: LLFF flower, 3 views at 504x378, 88.1 s (151,220 Gaussians: without the count control real
+threads, one after another with nothing else running, 2026-11-29 17:42-17:57, session 30's build; the script is
+docs/runs/speed/s30/references.sh), one reference per recipe the engine can run, because they differ more than any
+single factor allows:
+  - plain 3DGS: LLFF flower, 3 views at 504x378, 130.0 s (150,675 Gaussians: without the count control real
     photos grow them unchecked);
   - `--prior auto` where the cameras look at a common point (an object orbit: MVS init, count control,
-    dropout, the binocular shift every second step, no pseudo views): NeRF-synthetic lego, 8 views at 400x400,
-    63.5 s;
-  - `--prior auto` on a forward-facing rig (density-guided dropout, the binocular shift every step at half size,
-    warp-inpaint pseudo views at half size): LLFF flower at 504x378, 142.3 s.
+    dropout, the binocular shift every second step, no pseudo views, SH degree 2 from 8 views): NeRF-synthetic
+    lego, 8 views at 400x400, 97.7 s;
+  - `--prior auto` on a forward-facing rig (densified by absolute gradients, density-guided dropout, the binocular
+    shift every step at half size, warp-inpaint pseudo views at half size): LLFF flower at 504x378, 197.9 s.
   The machine's day moves such figures by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and
-  531 s that afternoon, and 319 s the day after): the machine probe below scales them.
+  531 s that afternoon, and 319 s the day after): the machine probe below scales them. The references before
+  (session 12's build, 88.1 / 63.5 / 142.3 s at a probe of 17.9 ms) had fallen behind the recipes: on a fresh
+  timings log the Santorini workflow below was stated 96 s and trained in 132 s (27 % short; session 30), the orbit
+  recipe having gained SH degree 2 on 8 views since.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
 optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, else forward-facing.
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71 (measured
 between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
 Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3 photos,
 balanced preset: 1000 steps of auto at 640x340, an orbit by the cameras), right after the reference cells with a
-fresh timings log: the references gave 79.6 s (the orbit one then rounded to 64 s; 79.0 s with 63.5), the probe
-(18.5 ms against 17.9) 82.3 s, stated as "~82 s"; the
-job trained in 88.8 s (the estimate 7 % short), 107 s end to end (session 12; session 11's build with its own
-references: stated ~88 s, trained 98.1 s). It is a rough figure (scene content and Gaussian counts move it too)
-and the panel says so.
+fresh timings log: see docs/speed.md, "Session 30" (session 12 with its references: stated ~82 s, trained 88.8 s).
+It is a rough figure (scene content and Gaussian counts move it too) and the panel says so.
 
 This machine's own jobs correct it: a training job started from the add-on keeps the uncorrected estimate in its
 folder (estimate.json); when it finishes, its measured training seconds are added to a small log beside the
@@ -60,9 +61,9 @@ from gsgs_engine import GsgsError
 REFERENCE_ITERS = 1000
 # recipe -> (seconds for REFERENCE_ITERS steps, pixels of a training view) measured as above
 REFERENCES = {
-    "plain": (88.1, 504 * 378),
-    "orbit": (63.5, 400 * 400),
-    "forward": (142.3, 504 * 378),
+    "plain": (130.0, 504 * 378),
+    "orbit": (97.7, 400 * 400),
+    "forward": (197.9, 504 * 378),  # the 1000-step recipe, which densifies by absolute gradients
 }
 # The orbit recipe of long schedules renders the binocular view at every step, not every second one: lego auto at
 # 1000 steps took 201 s that way against 157 s, back to back on a quiet machine (2026-11-26, docs/speed.md).
@@ -71,9 +72,10 @@ ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
 # at 1000 steps trained in 160.1 s that way against 137.8 s (means of seeds 0-2 of the 3-seed grid, 2026-11-27, one
 # cell at a time with kernel builds beside some cells: not a quiet pair; docs/speed.md).
 FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
-# ... and the forward-facing recipe of shorter schedules densifies by absolute gradients since session 29 (AbsGS;
-# the compiled backward computes the statistic): flower auto steps 1-1000 172.9 / 175.9 s before, 184.0 / 186.3 s
-# with it (two pairs alternating on a quiet machine, 2026-11-29; docs/speed.md, "Session 29").
+# ... and the forward-facing recipe of shorter schedules (the reference) densifies by absolute gradients since
+# session 29 (AbsGS; the compiled backward computes the statistic), which the long one and the other generators do
+# not: flower auto steps 1-1000 172.9 / 175.9 s without, 184.0 / 186.3 s with it (two pairs alternating on a quiet
+# machine, 2026-11-29; docs/speed.md, "Session 29").
 FORWARD_ABSGRAD_FACTOR = (184.0 + 186.3) / (172.9 + 175.9)
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
@@ -85,7 +87,7 @@ MIN_LEARN_ITERS = 100
 MIN_LEARN_SECONDS = 10.0
 FACTOR_RANGE = (0.2, 5.0)  # a correction outside this says more about a broken log than about the machine
 PROBE_FILE = "machine_probe.json"  # beside the timings log: the machine's last speed probe
-PROBE_REFERENCE_MS = 17.9  # `gsgs bench machine` right after the reference cells (2 threads): median of 3, 17.5-20.4
+PROBE_REFERENCE_MS = 25.1  # `gsgs bench machine` around the reference cells (2 threads): median of 6, 23.4-31.1
 PROBE_MAX_AGE_S = 900.0  # the Train operator probes again after this
 PROBE_TIMEOUT_S = 60.0
 
@@ -127,10 +129,10 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
     seconds, ref_pixels = REFERENCES[kind]
     if kind == "orbit" and iterations >= AUTO_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
-    if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... at full size
+    if kind == "forward" and (generator != "auto" or iterations >= AUTO_LONG_STEPS):  # no absolute gradients
+        seconds /= FORWARD_ABSGRAD_FACTOR
+    if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... the view at full size
         seconds *= FORWARD_FULL_VIEW_FACTOR
-    elif kind == "forward" and generator == "auto":  # ... densified by absolute gradients
-        seconds *= FORWARD_ABSGRAD_FACTOR
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
     per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT
