@@ -13,9 +13,9 @@ single factor allows:
     shift every step at half size, warp-inpaint pseudo views at half size): LLFF flower at 504x378, 197.9 s.
   The machine's day moves such figures by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and
   531 s that afternoon, and 319 s the day after): the machine probe below scales them. The references before
-  (session 12's build, 88.1 / 63.5 / 142.3 s at a probe of 17.9 ms) had fallen behind the recipes: on a fresh
-  timings log the Santorini workflow below was stated 96 s and trained in 132 s (27 % short; session 30), the orbit
-  recipe having gained SH degree 2 on 8 views since.
+  (session 12's build, 88.1 / 63.5 / 142.3 s at a probe of 17.9 ms) no longer matched this build: on a fresh
+  timings log the Santorini workflow below was stated 96 s and trained in 132 s (27 % short; session 30). Which of
+  the changes since (and how much of the VM's day) account for it was not measured.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
 optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, else forward-facing.
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71 (measured
