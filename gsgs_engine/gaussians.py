@@ -163,6 +163,11 @@ class GaussianModel:
         k = num_sh_coeffs(degree)
         return torch.cat([self.params["sh_dc"], self.params["sh_rest"][:, :k - 1]], dim=1)
 
+    def sh_parts(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(DC [N, 1, 3], higher bands [N, (max degree + 1)^2 - 1, 3]): the parameters themselves, which render()
+        takes as `sh` and `sh_rest` without the copy `sh()` makes."""
+        return self.params["sh_dc"], self.params["sh_rest"]
+
     @property
     def device(self) -> torch.device:
         return self.params["means"].device

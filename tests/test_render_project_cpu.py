@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
 from gsgs_engine.render import cpu_backend
 from gsgs_engine.render.api import render
@@ -238,3 +239,76 @@ def test_bad_inputs_raise_clear_errors(project_cpu):
         project_cpu(means, quats, scales, cam, sh[:, :4], sh_degree=2)
     with pytest.raises(RuntimeError, match="quats"):
         project_cpu(means, quats[:, :3], scales, cam, sh, sh_degree=0)
+
+
+def _split_and_joined(project_cpu, params, camera, degree, rest_len):
+    """Projection outputs and gradients with the SH in one tensor of the degree's coefficients, and with the DC
+    term and a rest of `rest_len` coefficients (the model's two parameters): [outputs..., grads...] of each."""
+    means, quats, scales, sh = params
+    dc, rest = sh[:, :1].contiguous(), sh[:, 1:1 + rest_len].contiguous()
+    joined = torch.cat([dc, rest[:, : (degree + 1) ** 2 - 1]], dim=1)
+    runs = []
+    for split in (False, True):
+        leaves = [t.clone().requires_grad_(True) for t in ((means, quats, scales, dc, rest) if split
+                                                          else (means, quats, scales, joined))]
+        if split:
+            p = project_cpu(*leaves[:3], camera, leaves[3], sh_degree=degree, sh_rest=leaves[4])
+        else:
+            p = project_cpu(*leaves[:3], camera, leaves[3], sh_degree=degree)
+        g = torch.Generator().manual_seed(degree)
+        loss = sum((getattr(p, f) * torch.randn(getattr(p, f).shape, generator=g, dtype=torch.float64)
+                    .to(means.dtype)).sum() for f in FIELDS)
+        loss.backward()
+        grads = [t.grad for t in leaves]
+        if split:  # the joined form's SH gradient is the head's and the used part of the rest's
+            assert torch.all(grads[4][:, (degree + 1) ** 2 - 1:] == 0), "an unused coefficient got a gradient"
+            grads = grads[:3] + [torch.cat([grads[3], grads[4][:, : (degree + 1) ** 2 - 1]], dim=1)]
+        runs.append([getattr(p, f) for f in FIELDS] + [p.radii] + grads)
+    return runs
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_sh_in_two_parts_equals_one_tensor_bit_for_bit(project_cpu, degree, dtype):
+    """The trainer passes its DC and higher-band parameters as they are (`sh_rest`): the same bits as the joined
+    tensor GaussianModel.sh() makes, forward and backward, at both lane widths, with a rest as long as the degree
+    needs and longer (a model whose active degree is below its maximum), and for an empty rest at degree 0."""
+    ops = cpu_backend._ops()
+    params = random_gaussians(40 + degree, 203, dtype, log_scale_sd=1.0)
+    for rest_len in sorted({(degree + 1) ** 2 - 1, 15}):
+        for width in (1, 8):
+            previous = ops.project_lane_width(width)
+            try:
+                joined, split = _split_and_joined(project_cpu, params, tilted_camera(), degree, rest_len)
+            finally:
+                ops.project_lane_width(previous)
+            for a, b in zip(joined, split):
+                assert torch.equal(torch.nan_to_num(a, nan=7.0), torch.nan_to_num(b, nan=7.0)), (rest_len, width)
+
+
+def test_render_takes_sh_in_two_parts_on_every_backend(project_cpu):
+    """render(sh=DC, sh_rest=rest) gives what render(sh=joined) gives: the compiled path bit for bit, the
+    reference path (which joins them) too; each part gets its own gradient."""
+    camera = tilted_camera(61, 43)
+    means, quats, scales, opacities, sh = _render_params(22, 300)
+    degree = 2
+    for backend in ("cpu", "reference"):
+        joined_out, joined_grads = _render_grads(backend, [means, quats, scales, opacities, sh[:, :9].contiguous()],
+                                                 camera, degree=degree)
+        leaves = [t.clone().requires_grad_(True) for t in (means, quats, scales, opacities, sh[:, :1].contiguous(),
+                                                           sh[:, 1:].contiguous())]
+        out = render(*leaves[:5], camera=camera, sh_degree=degree, background=torch.tensor([0.2, 0.4, 0.6]),
+                     backend=backend, sh_rest=leaves[5])
+        g = torch.Generator().manual_seed(7)
+        loss = ((out.color * torch.rand(out.color.shape, generator=g)).sum() + 0.05 * out.depth.sum()
+                + (out.alpha * torch.rand(out.alpha.shape, generator=g)).sum())
+        loss.backward()
+        for field in ("color", "depth", "alpha"):
+            assert torch.equal(getattr(out, field), getattr(joined_out, field)), (backend, field)
+        sh_grad = torch.cat([leaves[4].grad, leaves[5].grad[:, :8]], dim=1)
+        for a, b in zip([t.grad for t in leaves[:4]] + [sh_grad, out.means2d.grad], joined_grads):
+            assert torch.equal(a, b), backend
+        assert torch.all(leaves[5].grad[:, 8:] == 0)
+    with pytest.raises(GsgsError, match="sh_rest"):
+        render(means, quats, scales, opacities, sh[:, :1], camera, sh_degree=2, background=torch.zeros(3),
+               sh_rest=sh[:, 1:4])

@@ -135,7 +135,7 @@ def rasterize(means2d, conics, colors, opacities, depths, radii, width: int, hei
     return rasterize_reference(means2d, conics, colors, opacities, depths, radii, width, height, background)
 
 
-def _check_inputs(means, quats, scales, opacities, sh, sh_degree: int, camera: Camera) -> None:
+def _check_inputs(means, quats, scales, opacities, sh, sh_degree: int, camera: Camera, sh_rest=None) -> None:
     n = means.shape[0] if means.dim() == 2 else -1
     problems = []
     if means.dim() != 2 or means.shape[1] != 3:
@@ -148,8 +148,14 @@ def _check_inputs(means, quats, scales, opacities, sh, sh_degree: int, camera: C
         problems.append(f"opacities must be [N] (got {tuple(opacities.shape)})")
     if sh_degree not in (0, 1, 2, 3):
         problems.append(f"sh_degree must be 0-3 (got {sh_degree})")
-    elif sh.dim() != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] < num_sh_bases(sh_degree):
+    elif sh_rest is None and (sh.dim() != 3 or sh.shape[0] != n or sh.shape[2] != 3
+                              or sh.shape[1] < num_sh_bases(sh_degree)):
         problems.append(f"sh must be [N, K>={num_sh_bases(sh_degree)}, 3] for degree {sh_degree} (got {tuple(sh.shape)})")
+    elif sh_rest is not None and (sh.dim() != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] < 1
+                                  or sh_rest.dim() != 3 or sh_rest.shape[0] != n or sh_rest.shape[2] != 3
+                                  or sh.shape[1] + sh_rest.shape[1] < num_sh_bases(sh_degree)):
+        problems.append(f"sh [N, K0>=1, 3] and sh_rest [N, R, 3] must hold K0 + R >= {num_sh_bases(sh_degree)} "
+                        f"coefficients for degree {sh_degree} (got {tuple(sh.shape)} and {tuple(sh_rest.shape)})")
     if camera.width <= 0 or camera.height <= 0:
         problems.append(f"camera image size must be positive (got {camera.width}x{camera.height})")
     if problems:
@@ -158,7 +164,8 @@ def _check_inputs(means, quats, scales, opacities, sh, sh_degree: int, camera: C
 
 def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
            sh: torch.Tensor, camera: Camera, sh_degree: int, background, backend: str = "auto",
-           near: float = DEFAULT_NEAR, far: float = 1e10, absgrad: bool = False) -> RenderOutput:
+           near: float = DEFAULT_NEAR, far: float = 1e10, absgrad: bool = False,
+           sh_rest: torch.Tensor | None = None) -> RenderOutput:
     """Render Gaussians (means, quats wxyz, linear scales, opacities in [0, 1], SH [N, K, 3]).
 
     Differentiable w.r.t. every Gaussian input. float16 / bfloat16 inputs are upcast to float32;
@@ -167,15 +174,25 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     absgrad: after backward, `out.means2d.absgrad` [N, 2] holds each Gaussian's sums over pixels of the pixels'
     own |dL/dmeans2d| per axis, beside `.grad`, their plain sum (AbsGS's densification statistic: gradients of
     opposite sign from different pixels do not cancel). The compiled CPU rasteriser and CUDA only.
+
+    sh_rest: the SH coefficients in two parts, `sh` [N, K0, 3] the first K0 (a model's DC term) and `sh_rest`
+    [N, R, 3] the next R, as if `sh` were their concatenation; each part gets its own gradient. The compiled CPU
+    projection reads them where they are (no concatenated copy a render, no scattered slice of its gradient);
+    the other backends concatenate the coefficients the degree uses.
     """
     if opacities.dim() == 2 and opacities.shape[1] == 1:
         opacities = opacities[:, 0]
-    _check_inputs(means, quats, scales, opacities, sh, sh_degree, camera)
+    _check_inputs(means, quats, scales, opacities, sh, sh_degree, camera, sh_rest)
     dtype = torch.float64 if means.dtype == torch.float64 else torch.float32
     device = means.device
     means, quats, scales, opacities, sh = (x.to(device=device, dtype=dtype) for x in (means, quats, scales, opacities, sh))
     background = torch.as_tensor(background, device=device).to(dtype).reshape(3)
     chosen = select_backend(backend, device, dtype)
+    if sh_rest is not None:
+        sh_rest = sh_rest.to(device=device, dtype=dtype)
+        if chosen != "cpu":  # one tensor of the degree's coefficients, as GaussianModel.sh() makes it
+            sh = torch.cat([sh, sh_rest[:, :max(num_sh_bases(sh_degree) - sh.shape[1], 0)]], dim=1)
+            sh_rest = None
 
     if chosen == "cuda":
         from gsgs_engine.render import cuda_backend
@@ -189,7 +206,8 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
 
     if chosen == "cpu":
         from gsgs_engine.render.project_cpu import project_gaussians_cpu
-        proj = project_gaussians_cpu(means, quats, scales, camera, sh, sh_degree=sh_degree, near=near, far=far)
+        proj = project_gaussians_cpu(means, quats, scales, camera, sh, sh_degree=sh_degree, near=near, far=far,
+                                     sh_rest=sh_rest)
     else:
         proj = project_gaussians(means, quats, scales, camera, sh=sh, sh_degree=sh_degree, near=near, far=far)
     means2d = proj.means2d

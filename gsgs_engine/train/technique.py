@@ -32,6 +32,24 @@ from typing import Any
 PHOTO_VIEW = "photo_view"
 
 
+def joined_sh(inputs: dict) -> dict:
+    """Rasteriser inputs with the SH coefficients in one tensor `sh` [N, (degree + 1)^2, 3].
+
+    The trainer passes the model's DC term as `sh` and its higher bands as `sh_rest` (render() reads the two
+    where they are); a technique that rewrites the coefficients takes them joined from here, exactly the tensor
+    GaussianModel.sh() makes, and returns them without `sh_rest`."""
+    rest = inputs.get("sh_rest")
+    if rest is None:
+        return inputs
+    import torch
+
+    from gsgs_engine.render.sh import num_sh_bases
+
+    sh = inputs["sh"]
+    wanted = max(num_sh_bases(int(inputs["sh_degree"])) - sh.shape[1], 0)
+    return {**inputs, "sh": torch.cat([sh, rest[:, :wanted]], dim=1), "sh_rest": None}
+
+
 @dataclass
 class StepContext:
     """What a technique's hooks may look at in the current step.
@@ -66,9 +84,11 @@ class Technique:
         """Before the step's renders; `step` is the 1-based step about to run."""
 
     def render_inputs(self, ctx: StepContext, inputs: dict) -> dict:
-        """Rewrite the rasteriser's inputs (means, quats, scales, opacities, colors) of a training
+        """Rewrite the rasteriser's inputs (means, quats, scales, opacities, sh, sh_rest, sh_degree) of a training
         render; must stay differentiable. Called for every render made through
-        `Trainer.render_for_training` (training views and a technique's own supervised views)."""
+        `Trainer.render_for_training` (training views and a technique's own supervised views). The SH
+        coefficients may come in two parts (`sh` the DC term, `sh_rest` the rest): rewrite them through
+        `joined_sh(inputs)`."""
         return inputs
 
     def loss_terms(self, ctx: StepContext) -> dict | None:

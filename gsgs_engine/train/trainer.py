@@ -361,8 +361,9 @@ class Trainer:
         """The rasteriser's inputs for `camera` (a 4D trainer evaluates its model at camera.time)."""
         degree = self.model.active_sh_degree if sh_degree is None else sh_degree
         m = self.model
+        sh_dc, sh_rest = m.sh_parts()  # render() reads both where they are (technique.joined_sh to rewrite them)
         return {"means": m.means, "quats": m.quats, "scales": m.scales, "opacities": m.opacities,
-                "sh": m.sh(degree), "sh_degree": degree}
+                "sh": sh_dc, "sh_rest": sh_rest, "sh_degree": degree}
 
     def render(self, camera: Camera, background: torch.Tensor | None = None, sh_degree: int | None = None):
         """Render the model as it is (evaluation, pseudo-view generation): no technique changes it."""
@@ -371,7 +372,7 @@ class Trainer:
         inputs = self.gaussians_for(camera, sh_degree)
         return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                       sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend, near=self.config.novel_view_near)
+                      backend=self.config.backend, near=self.config.novel_view_near, sh_rest=inputs.get("sh_rest"))
 
     def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None,
                             absgrad: bool | None = None):
@@ -387,7 +388,8 @@ class Trainer:
                 inputs = t.render_inputs(ctx, inputs)
         return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                       sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend, absgrad=self._step_absgrad if absgrad is None else absgrad)
+                      backend=self.config.backend, absgrad=self._step_absgrad if absgrad is None else absgrad,
+                      sh_rest=inputs.get("sh_rest"))
 
     # -- the loop -------------------------------------------------------------------------------
     def _next_view(self) -> int:

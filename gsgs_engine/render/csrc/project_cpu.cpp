@@ -16,6 +16,10 @@
 // a lane policy (project_lanes.h): float32 takes eight Gaussians at a time in vector lanes (and one at a
 // time for the tail), float64 one at a time; the eight-lane results equal the one-lane ones bit for bit
 // (tested), so the result does not depend on where a thread's share starts either.
+// SH coefficients come in one tensor [N, K, 3] or in two, a head [N, K0, 3] and the rest [N, R, 3] (coefficient b is
+// head[b] for b < K0, else rest[b - K0]): the trainer passes its DC and higher-band parameters as they are, so no
+// concatenated copy is made for every render and no slice of its gradient is scattered back (both forms compute
+// the same values; the gradient comes back in the same two parts).
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
@@ -40,6 +44,23 @@ constexpr double kFrustumSlack = 1.3;  // project.FRUSTUM_SLACK
 constexpr double kQuatEps = 1e-12;   // project.QUAT_EPS
 constexpr double kDirEps = 1e-24;    // project.view_colors
 constexpr double kMaxRadius = 1073741824.0;  // project.MAX_RADIUS = 2^30
+
+// The SH coefficients of every Gaussian: `n_head` of them per channel in `head`, then `n_rest` in `rest` (nullptr
+// when n_rest is 0); both [N, n, 3] row-major.
+template <typename S>
+struct ShIn {
+  const S* head;
+  int64_t n_head;
+  const S* rest;
+  int64_t n_rest;
+};
+
+// Their gradients, laid out as the inputs.
+template <typename S>
+struct ShOut {
+  S* head;
+  S* rest;
+};
 
 // sh.py's constants.
 constexpr double SH_C0 = 0.28209479177387814;
@@ -278,26 +299,43 @@ void check_tensor(const at::Tensor& t, const char* name, int64_t n, std::initial
 }
 
 template <typename S>
-void check_all(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales, const at::Tensor& sh,
-               int64_t sh_degree) {
+ShIn<S> check_all(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales, const at::Tensor& sh,
+                  const c10::optional<at::Tensor>& sh_rest, int64_t sh_degree) {
   const int64_t n = means.size(0);
   check_tensor<S>(means, "means", n, {3});
   check_tensor<S>(quats, "quats", n, {4});
   check_tensor<S>(scales, "scales", n, {3});
   check_tensor<S>(sh, "sh", n, {-1, 3});
+  TORCH_CHECK(sh.size(1) >= 1, "project_cpu: sh needs at least the DC coefficient, got ", sh.sizes());
+  ShIn<S> h{sh.data_ptr<S>(), sh.size(1), nullptr, 0};
+  if (sh_rest.has_value()) {
+    check_tensor<S>(*sh_rest, "sh_rest", n, {-1, 3});
+    h.n_rest = sh_rest->size(1);
+    if (h.n_rest > 0) h.rest = sh_rest->data_ptr<S>();
+  }
   TORCH_CHECK(sh_degree >= 0 && sh_degree <= 3, "project_cpu: sh_degree must be 0-3, got ", sh_degree);
-  TORCH_CHECK(sh.size(1) >= (sh_degree + 1) * (sh_degree + 1), "project_cpu: sh has ", sh.size(1),
+  TORCH_CHECK(h.n_head + h.n_rest >= (sh_degree + 1) * (sh_degree + 1), "project_cpu: sh has ", h.n_head + h.n_rest,
               " coefficients per channel, degree ", sh_degree, " needs ", (sh_degree + 1) * (sh_degree + 1));
+  return h;
 }
 
 // Whether float32 projections take eight Gaussians at a time (1, the default) or one (0: the one-lane code the
 // eight-lane code must equal bit for bit; set by tests through project_lane_width).
 std::atomic<int> g_eight_lanes{1};
 
+// The first `nb` coefficients of Gaussians g .. g + L::kWidth - 1, [b][ch], from the head and then the rest (out holds
+// 3 nb values and room for a last whole run of 8 fields, as L::load_fields writes).
+template <typename L>
+GSGS_LANE_INLINE void load_coeffs(const ShIn<typename L::S>& h, int64_t g, int nb, typename L::T* out) {
+  const int from_head = static_cast<int>(std::min<int64_t>(nb, h.n_head));
+  L::load_fields(h.head, h.n_head * 3, g, 3 * from_head, out);
+  if (nb > from_head) L::load_fields(h.rest, h.n_rest * 3, g, 3 * (nb - from_head), out + 3 * from_head);
+}
+
 // Projection and colour of Gaussians g .. g + L::kWidth - 1.
 template <typename L>
 GSGS_LANE_INLINE void forward_lanes(const Cam<typename L::S>& k, const typename L::S* mp, const typename L::S* qp,
-                                    const typename L::S* sp, const typename L::S* hp, int64_t n_coeffs,
+                                    const typename L::S* sp, const ShIn<typename L::S>& h,
                                     int64_t sh_degree, typename L::S* o_m, typename L::S* o_k, typename L::S* o_d,
                                     typename L::S* o_c, int32_t* o_r, int64_t g) {
   using S = typename L::S;
@@ -332,7 +370,7 @@ GSGS_LANE_INLINE void forward_lanes(const Cam<typename L::S>& k, const typename 
   T basis[16];
   const int nb = sh_basis<L>(static_cast<int>(sh_degree), dir[0] * inv, dir[1] * inv, dir[2] * inv, basis);
   T coeffs[16 * 3 + 8];  // the used coefficients, [b][ch] (room for a last whole run of 8 fields)
-  L::load_fields(hp, n_coeffs * 3, g, 3 * nb, coeffs);
+  load_coeffs<L>(h, g, nb, coeffs);
   for (int ch = 0; ch < 3; ++ch) {
     T v = L::splat(S(0));
     for (int b = 0; b < nb; ++b) v += basis[b] * coeffs[3 * b + ch];
@@ -343,25 +381,26 @@ GSGS_LANE_INLINE void forward_lanes(const Cam<typename L::S>& k, const typename 
 
 // Projection and colour of Gaussians [g0, g1) (one thread's share).
 template <typename S>
-GSGS_HOT void forward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const S* hp, int64_t n_coeffs,
+GSGS_HOT void forward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const ShIn<S>& h,
                             int64_t sh_degree, S* o_m, S* o_k, S* o_d, S* o_c, int32_t* o_r, int64_t g0, int64_t g1) {
   int64_t g = g0;
   if constexpr (std::is_same_v<S, float>) {
     if (g_eight_lanes.load(std::memory_order_relaxed))
       for (; g + Eight::kWidth <= g1; g += Eight::kWidth)
-        forward_lanes<Eight>(k, mp, qp, sp, hp, n_coeffs, sh_degree, o_m, o_k, o_d, o_c, o_r, g);
+        forward_lanes<Eight>(k, mp, qp, sp, h, sh_degree, o_m, o_k, o_d, o_c, o_r, g);
   }
-  for (; g < g1; ++g) forward_lanes<One<S>>(k, mp, qp, sp, hp, n_coeffs, sh_degree, o_m, o_k, o_d, o_c, o_r, g);
+  for (; g < g1; ++g) forward_lanes<One<S>>(k, mp, qp, sp, h, sh_degree, o_m, o_k, o_d, o_c, o_r, g);
 }
 
 // Gradients of Gaussians g .. g + L::kWidth - 1. A culled Gaussian (radius 0: the rasteriser ignored it) gets
 // exactly zero; a branch of the one-lane code not taken by a lane is computed and selected away.
 template <typename L>
 GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename L::S* mp, const typename L::S* qp,
-                                     const typename L::S* sp, const typename L::S* hp, int64_t n_coeffs, int deg,
+                                     const typename L::S* sp, const ShIn<typename L::S>& h, int deg,
                                      const int32_t* rp, const typename L::S* gm, const typename L::S* gk,
                                      const typename L::S* gd, const typename L::S* gc, typename L::S* dm_p,
-                                     typename L::S* dq_p, typename L::S* ds_p, typename L::S* dh_p, int64_t g) {
+                                     typename L::S* dq_p, typename L::S* ds_p, const ShOut<typename L::S>& dh,
+                                     int64_t g) {
   using S = typename L::S;
   using T = typename L::T;
   using Mask = typename L::M;
@@ -376,7 +415,8 @@ GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename
   for (int i = 0; i < L::kWidth; ++i) any_drawn = any_drawn || L::lane(drawn, i);
   if (!any_drawn) {  // nothing reaches these Gaussians' parameters
     for (int i = 0; i < L::kWidth; ++i) {
-      std::fill(dh_p + (g + i) * n_coeffs * 3, dh_p + (g + i + 1) * n_coeffs * 3, S(0));
+      std::fill(dh.head + (g + i) * h.n_head * 3, dh.head + (g + i + 1) * h.n_head * 3, S(0));
+      if (h.n_rest > 0) std::fill(dh.rest + (g + i) * h.n_rest * 3, dh.rest + (g + i + 1) * h.n_rest * 3, S(0));
       std::fill(dm_p + 3 * (g + i), dm_p + 3 * (g + i + 1), S(0));
       std::fill(dq_p + 4 * (g + i), dq_p + 4 * (g + i + 1), S(0));
       std::fill(ds_p + 3 * (g + i), ds_p + 3 * (g + i + 1), S(0));
@@ -398,7 +438,7 @@ GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename
     T basis[16];
     const int nb = sh_basis<L>(deg, d[0], d[1], d[2], basis);
     T coeffs[16 * 3 + 8];  // [b][ch], as in the forward
-    L::load_fields(hp, n_coeffs * 3, g, 3 * nb, coeffs);
+    load_coeffs<L>(h, g, nb, coeffs);
     T dcol[3];
     Mask any = L::none();
     for (int ch = 0; ch < 3; ++ch) {
@@ -408,9 +448,11 @@ GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename
       dcol[ch] = L::sel(val >= zero, L::load(gc, 3, g, ch), zero);
       any = L::either(any, dcol[ch] != zero);
     }
-    L::store_fields(dh_p, n_coeffs * 3, g, [&](int64_t f) {
+    auto d_coeff = [&](int64_t f) {  // field f = 3 b + ch of the coefficients, head and rest together
       return f < 3 * nb ? L::sel(drawn, basis[f / 3] * dcol[f % 3], zero) : zero;
-    });
+    };
+    L::store_fields(dh.head, h.n_head * 3, g, d_coeff);
+    if (h.n_rest > 0) L::store_fields(dh.rest, h.n_rest * 3, g, [&](int64_t f) { return d_coeff(f + 3 * h.n_head); });
     if (deg > 0) {
       T db[16][3];
       sh_basis_grad<L>(deg, d[0], d[1], d[2], db);
@@ -522,30 +564,30 @@ GSGS_LANE_INLINE void backward_lanes(const Cam<typename L::S>& k, const typename
 
 // Gradients of Gaussians [g0, g1) (one thread's share).
 template <typename S>
-GSGS_HOT void backward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const S* hp, int64_t n_coeffs,
-                             int deg, const int32_t* rp, const S* gm, const S* gk, const S* gd, const S* gc, S* dm_p,
-                             S* dq_p, S* ds_p, S* dh_p, int64_t g0, int64_t g1) {
+GSGS_HOT void backward_range(const Cam<S>& k, const S* mp, const S* qp, const S* sp, const ShIn<S>& h, int deg,
+                             const int32_t* rp, const S* gm, const S* gk, const S* gd, const S* gc, S* dm_p,
+                             S* dq_p, S* ds_p, const ShOut<S>& dh, int64_t g0, int64_t g1) {
   int64_t g = g0;
   if constexpr (std::is_same_v<S, float>) {
     if (g_eight_lanes.load(std::memory_order_relaxed))
       for (; g + Eight::kWidth <= g1; g += Eight::kWidth)
-        backward_lanes<Eight>(k, mp, qp, sp, hp, n_coeffs, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh_p, g);
+        backward_lanes<Eight>(k, mp, qp, sp, h, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh, g);
   }
   for (; g < g1; ++g)
-    backward_lanes<One<S>>(k, mp, qp, sp, hp, n_coeffs, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh_p, g);
+    backward_lanes<One<S>>(k, mp, qp, sp, h, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh, g);
 }
 
 using ProjectResult = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
 
 template <typename S>
 ProjectResult forward_impl(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
-                           const at::Tensor& sh, const at::Tensor& cam, double fx, double fy, double cx, double cy,
-                           int64_t width, int64_t height, double near_, double far_, int64_t sh_degree) {
+                           const at::Tensor& sh, const c10::optional<at::Tensor>& sh_rest, const at::Tensor& cam,
+                           double fx, double fy, double cx, double cy, int64_t width, int64_t height, double near_,
+                           double far_, int64_t sh_degree) {
   gsgs_phase::Lap lap;
-  check_all<S>(means, quats, scales, sh, sh_degree);
+  const ShIn<S> h = check_all<S>(means, quats, scales, sh, sh_rest, sh_degree);
   const Cam<S> k = make_cam<S>(cam, fx, fy, cx, cy, width, height, near_, far_);
   const int64_t n = means.size(0);
-  const int64_t n_coeffs = sh.size(1);
   const auto opts = means.options();
   at::Tensor means2d = at::empty({n, 2}, opts);
   at::Tensor conics = at::empty({n, 3}, opts);
@@ -555,29 +597,28 @@ ProjectResult forward_impl(const at::Tensor& means, const at::Tensor& quats, con
   const S* mp = means.data_ptr<S>();
   const S* qp = quats.data_ptr<S>();
   const S* sp = scales.data_ptr<S>();
-  const S* hp = sh.data_ptr<S>();
   S* o_m = means2d.data_ptr<S>();
   S* o_k = conics.data_ptr<S>();
   S* o_d = depths.data_ptr<S>();
   S* o_c = colors.data_ptr<S>();
   int32_t* o_r = radii.data_ptr<int32_t>();
   at::parallel_for(0, n, 1024, [&](int64_t g0, int64_t g1) {
-    forward_range(k, mp, qp, sp, hp, n_coeffs, sh_degree, o_m, o_k, o_d, o_c, o_r, g0, g1);
+    forward_range(k, mp, qp, sp, h, sh_degree, o_m, o_k, o_d, o_c, o_r, g0, g1);
   });
   lap(gsgs_phase::kProjectForward);
   return {means2d, conics, depths, radii, colors};
 }
 
-using ProjectGrads = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
+using ProjectGrads = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
 
 template <typename S>
 ProjectGrads backward_impl(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
-                           const at::Tensor& sh, const at::Tensor& cam, double fx, double fy, double cx, double cy,
-                           int64_t width, int64_t height, double near_, double far_, int64_t sh_degree,
-                           const at::Tensor& radii, const at::Tensor& g_means2d, const at::Tensor& g_conics,
-                           const at::Tensor& g_depths, const at::Tensor& g_colors) {
+                           const at::Tensor& sh, const c10::optional<at::Tensor>& sh_rest, const at::Tensor& cam,
+                           double fx, double fy, double cx, double cy, int64_t width, int64_t height, double near_,
+                           double far_, int64_t sh_degree, const at::Tensor& radii, const at::Tensor& g_means2d,
+                           const at::Tensor& g_conics, const at::Tensor& g_depths, const at::Tensor& g_colors) {
   gsgs_phase::Lap lap;
-  check_all<S>(means, quats, scales, sh, sh_degree);
+  const ShIn<S> h = check_all<S>(means, quats, scales, sh, sh_rest, sh_degree);
   const int64_t n = means.size(0);
   check_tensor<S>(g_means2d, "grad means2d", n, {2});
   check_tensor<S>(g_conics, "grad conics", n, {3});
@@ -586,15 +627,15 @@ ProjectGrads backward_impl(const at::Tensor& means, const at::Tensor& quats, con
   TORCH_CHECK(radii.scalar_type() == at::kInt && radii.is_contiguous() && radii.numel() == n,
               "project_cpu backward: radii must be int32 [N]");
   const Cam<S> k = make_cam<S>(cam, fx, fy, cx, cy, width, height, near_, far_);
-  const int64_t n_coeffs = sh.size(1);
   at::Tensor d_means = at::empty({n, 3}, means.options());
   at::Tensor d_quats = at::empty({n, 4}, means.options());
   at::Tensor d_scales = at::empty({n, 3}, means.options());
-  at::Tensor d_sh = at::empty({n, n_coeffs, 3}, means.options());
+  at::Tensor d_sh = at::empty({n, h.n_head, 3}, means.options());
+  // the rest's gradient has the rest's shape (every coefficient written: zero past the degree's)
+  at::Tensor d_sh_rest = at::empty({n, sh_rest.has_value() ? sh_rest->size(1) : 0, 3}, means.options());
   const S* mp = means.data_ptr<S>();
   const S* qp = quats.data_ptr<S>();
   const S* sp = scales.data_ptr<S>();
-  const S* hp = sh.data_ptr<S>();
   const int32_t* rp = radii.data_ptr<int32_t>();
   const S* gm = g_means2d.data_ptr<S>();
   const S* gk = g_conics.data_ptr<S>();
@@ -603,36 +644,40 @@ ProjectGrads backward_impl(const at::Tensor& means, const at::Tensor& quats, con
   S* dm_p = d_means.data_ptr<S>();
   S* dq_p = d_quats.data_ptr<S>();
   S* ds_p = d_scales.data_ptr<S>();
-  S* dh_p = d_sh.data_ptr<S>();
+  const ShOut<S> dh{d_sh.data_ptr<S>(), h.n_rest > 0 ? d_sh_rest.data_ptr<S>() : nullptr};
   const int deg = static_cast<int>(sh_degree);
   at::parallel_for(0, n, 512, [&](int64_t g0, int64_t g1) {
-    backward_range(k, mp, qp, sp, hp, n_coeffs, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh_p, g0, g1);
+    backward_range(k, mp, qp, sp, h, deg, rp, gm, gk, gd, gc, dm_p, dq_p, ds_p, dh, g0, g1);
   });
   lap(gsgs_phase::kProjectBackward);
-  return {d_means, d_quats, d_scales, d_sh};
+  return {d_means, d_quats, d_scales, d_sh, d_sh_rest};
 }
 
 ProjectResult project_forward(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
-                              const at::Tensor& sh, const at::Tensor& cam, double fx, double fy, double cx, double cy,
-                              int64_t width, int64_t height, double near_, double far_, int64_t sh_degree) {
+                              const at::Tensor& sh, const c10::optional<at::Tensor>& sh_rest, const at::Tensor& cam,
+                              double fx, double fy, double cx, double cy, int64_t width, int64_t height, double near_,
+                              double far_, int64_t sh_degree) {
   TORCH_CHECK(means.dim() == 2, "project_cpu: means must be [N, 3]");
   TORCH_CHECK(width > 0 && height > 0, "project_cpu: image size must be positive");
   if (means.scalar_type() == at::kDouble)
-    return forward_impl<double>(means, quats, scales, sh, cam, fx, fy, cx, cy, width, height, near_, far_, sh_degree);
-  return forward_impl<float>(means, quats, scales, sh, cam, fx, fy, cx, cy, width, height, near_, far_, sh_degree);
+    return forward_impl<double>(means, quats, scales, sh, sh_rest, cam, fx, fy, cx, cy, width, height, near_, far_,
+                                sh_degree);
+  return forward_impl<float>(means, quats, scales, sh, sh_rest, cam, fx, fy, cx, cy, width, height, near_, far_,
+                             sh_degree);
 }
 
 ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
-                              const at::Tensor& sh, const at::Tensor& cam, double fx, double fy, double cx, double cy,
-                              int64_t width, int64_t height, double near_, double far_, int64_t sh_degree,
+                              const at::Tensor& sh, const c10::optional<at::Tensor>& sh_rest, const at::Tensor& cam,
+                              double fx, double fy, double cx, double cy, int64_t width, int64_t height, double near_,
+                              double far_, int64_t sh_degree,
                               const at::Tensor& radii, const at::Tensor& g_means2d, const at::Tensor& g_conics,
                               const at::Tensor& g_depths, const at::Tensor& g_colors) {
   TORCH_CHECK(means.dim() == 2, "project_cpu: means must be [N, 3]");
   if (means.scalar_type() == at::kDouble)
-    return backward_impl<double>(means, quats, scales, sh, cam, fx, fy, cx, cy, width, height, near_, far_, sh_degree,
-                                 radii, g_means2d, g_conics, g_depths, g_colors);
-  return backward_impl<float>(means, quats, scales, sh, cam, fx, fy, cx, cy, width, height, near_, far_, sh_degree,
-                              radii, g_means2d, g_conics, g_depths, g_colors);
+    return backward_impl<double>(means, quats, scales, sh, sh_rest, cam, fx, fy, cx, cy, width, height, near_, far_,
+                                 sh_degree, radii, g_means2d, g_conics, g_depths, g_colors);
+  return backward_impl<float>(means, quats, scales, sh, sh_rest, cam, fx, fy, cx, cy, width, height, near_, far_,
+                              sh_degree, radii, g_means2d, g_conics, g_depths, g_colors);
 }
 
 // Sets how many float32 Gaussians the projection takes at a time (8, or 1 for the one-lane code); returns the
@@ -647,14 +692,15 @@ int64_t project_lane_width(int64_t width) {
 TORCH_LIBRARY_FRAGMENT(gsgs_raster_cpu, m) {
   m.def("project_lane_width(int width) -> int", &project_lane_width);
   m.def(
-      "project_forward(Tensor means, Tensor quats, Tensor scales, Tensor sh, Tensor cam, float fx, float fy, "
-      "float cx, float cy, int width, int height, float near, float far, int sh_degree) -> "
+      "project_forward(Tensor means, Tensor quats, Tensor scales, Tensor sh, Tensor? sh_rest, Tensor cam, float fx, "
+      "float fy, float cx, float cy, int width, int height, float near, float far, int sh_degree) -> "
       "(Tensor, Tensor, Tensor, Tensor, Tensor)",
       &project_forward);
   m.def(
-      "project_backward(Tensor means, Tensor quats, Tensor scales, Tensor sh, Tensor cam, float fx, float fy, "
-      "float cx, float cy, int width, int height, float near, float far, int sh_degree, Tensor radii, "
+      "project_backward(Tensor means, Tensor quats, Tensor scales, Tensor sh, Tensor? sh_rest, Tensor cam, "
+      "float fx, float fy, float cx, float cy, int width, int height, float near, float far, int sh_degree, "
+      "Tensor radii, "
       "Tensor grad_means2d, Tensor grad_conics, Tensor grad_depths, Tensor grad_colors) -> "
-      "(Tensor, Tensor, Tensor, Tensor)",
+      "(Tensor, Tensor, Tensor, Tensor, Tensor)",
       &project_backward);
 }

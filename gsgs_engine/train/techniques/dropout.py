@@ -33,7 +33,7 @@ from __future__ import annotations
 import torch
 
 from gsgs_engine import GsgsError
-from gsgs_engine.train.technique import StepContext, Technique
+from gsgs_engine.train.technique import StepContext, Technique, joined_sh
 
 DEFAULT_MAX_RATE = 0.2  # DropGaussian's final drop rate
 GUIDES = ("uniform", "density", "anchor")
@@ -201,6 +201,7 @@ class GaussianDropout(Technique):
 
     def render_inputs(self, ctx: StepContext, inputs: dict) -> dict:
         if self.sh_rate > 0.0 and inputs.get("sh_degree", 0) > 0:
+            inputs = joined_sh(inputs)
             inputs = {**inputs, "sh": dropout_sh_bands(inputs["sh"], self.sh_rate, ctx.trainer.torch_gen)}
         return self._opacity_inputs(ctx, inputs)
 

@@ -31,7 +31,7 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.render.sh import SH_C0
-from gsgs_engine.train.technique import PHOTO_VIEW, StepContext, Technique
+from gsgs_engine.train.technique import PHOTO_VIEW, StepContext, Technique, joined_sh
 
 DEFAULT_LR = 1e-3
 
@@ -78,6 +78,7 @@ class ExposureCompensation(Technique):
         if len(self.keys) < 2:  # one camera: re-centred, its correction is the identity
             return inputs
         g = self.group_of_view[int(ctx.shared.get(PHOTO_VIEW, ctx.view_index))]
+        inputs = joined_sh(inputs)
         gain = torch.exp(self.log_gain[g]).to(inputs["sh"].dtype)
         return {**inputs, "sh": corrected_sh(inputs["sh"], gain, self.offset[g].to(inputs["sh"].dtype))}
 
