@@ -3,6 +3,8 @@
 # seeds 0-2, f6f2ab9 then this build (4593621's tree) for each scene and seed, one cell at a time. Completes session
 # 30's seed-0 lego and flower pairs (docs/runs/speed/s30/pinned_ab.sh; same work folders, so `bench sparse` skips the
 # cells it finds finished). Trees exported with `git archive COMMIT | tar -x -C DIR`, kernels built before.
+# COUNTS (seed counts, each round runs the seeds below it) and SCENES (protocol:scene) narrow the grid, e.g.
+# pinned_seed2_orbits.sh.
 cd /tmp
 V='{"auto": {"prior": "auto"}}'
 cell() { # tree tag protocol scene nseeds
@@ -10,10 +12,10 @@ cell() { # tree tag protocol scene nseeds
     --variants "$V" --data-root /work/shared/data --work /tmp/f6/w/$2 --doc /tmp/f6/w/$2_$4.md >> /tmp/f6/w/log_$2.txt 2>&1
   echo "$(date +%T) $2 $4 seeds<$5 done" >> /tmp/f6/w/times.txt
 }
-for n in 1 2 3; do
-  for ps in blender:blender_lego blender:blender_chair llff:llff_flower llff:llff_horns; do
+for n in ${COUNTS:-1 2 3}; do
+  for ps in ${SCENES:-blender:blender_lego blender:blender_chair llff:llff_flower llff:llff_horns}; do
     cell /tmp/f6/tree old ${ps%%:*} ${ps#*:} $n
     cell /tmp/s31/tree new ${ps%%:*} ${ps#*:} $n
   done
 done
-echo "$(date +%T) grid finished" >> /tmp/f6/w/times.txt
+echo "$(date +%T) ${DONE:-grid finished}" >> /tmp/f6/w/times.txt
