@@ -20,6 +20,7 @@ from typing import Callable
 from gsgs_engine import GsgsError
 from gsgs_engine.effect_plan import apply_effect_plan, plan_effects, scene_for_plan, shared_triangulation
 from gsgs_engine.job import write_json_atomic
+from gsgs_engine.machine import machine_record
 from gsgs_engine.priors.config import PriorConfig, resolve_prior_plan
 from gsgs_engine.train import checkpoint as ckpt
 from gsgs_engine.train.trainer import TrainConfig, Trainer, TrainingCancelled, resolve_device, validate_config
@@ -125,6 +126,7 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "technique_seconds": {k: round(v, 3) for k, v in trainer.technique_seconds.items()},
         "densify_events": len(trainer.densify_log), "per_view": evaluation["per_view"],
         "techniques": {t.name: t.report() for t in trainer.techniques},
+        "machine": machine_record(),  # another processor rounds differently (gsgs_engine.machine)
     }
     write_json_atomic(out_dir / "metrics.json", metrics)
     return metrics

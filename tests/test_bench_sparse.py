@@ -56,6 +56,11 @@ def test_tiny_real_run_is_resumable(tmp_path, capsys):
     first = json.loads((tmp_path / "doc" / "sparse.json").read_text())
     cell = first["cells"][0]
     assert cell["metrics"]["psnr"] > 0 and cell["metrics"]["num_gaussians"] > 0
+    # the machine the cell trained on, from its metrics.json, in the JSON and the table
+    from gsgs_engine.machine import cpu_model
+
+    assert cell["machine"].startswith(cpu_model()) and first["meta"]["cell_machines"] == [cell["machine"]]
+    assert f"Cells trained on: {cell['machine']}." in (tmp_path / "doc" / "sparse.md").read_text()
     job = json.loads((tmp_path / "work" / "blender" / "blender_chair" / "plain" / "seed0" / "job.json").read_text())
     assert job["data"]["train_ids"] == BLENDER_TRAIN_IDS and job["settings"]["seed"] == 0
     table = (tmp_path / "doc" / "sparse.md").read_text()

@@ -355,6 +355,7 @@ def load_bench_scene(data: Path, cameras: int, frames: int, resolution_scale: fl
 def run(args) -> int:
     from gsgs_engine import GsgsError
     from gsgs_engine.job import write_json_atomic
+    from gsgs_engine.machine import machine_record
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -407,6 +408,7 @@ def run(args) -> int:
                             "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
                             "techniques": args.techniques or "none", "background": args.background,
                             "seed": args.seed, "render_seconds": rendered, "threads": args.threads,
+                            "machine": machine_record(),
                             "lpips": "none" if args.no_lpips else "vgg",
                             "metric": "PSNR / SSIM / LPIPS on the test cameras, averaged over every test view "
                                       "(camera x frame); region: PSNR inside " + results["region"]}

@@ -29,6 +29,8 @@ import threading
 import time
 from pathlib import Path
 
+from gsgs_engine.machine import cpu_model, machine_label
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 BLENDER_TRAIN_IDS = ["r_2", "r_16", "r_26", "r_55", "r_73", "r_76", "r_86", "r_93"]
 
@@ -313,6 +315,18 @@ def overview(rows: list[dict], protocol: str, variants: list[str]) -> list[str]:
     return lines
 
 
+def machines_note(labels: list[str] | None) -> list[str]:
+    """What the table's cells trained on; a warning when they came from more than one machine (a cell finished on
+    another machine and found in the work folder): rounding differs between processors, so do their scores."""
+    if not labels:
+        return []
+    if len(labels) == 1:
+        return [f"Cells trained on: {labels[0]}."]
+    return [f"**Warning: these cells trained on {len(labels)} machines** ({'; '.join(labels)}). Another processor "
+            "rounds differently and a cell's PSNR moves by up to 0.25 dB with nothing else changed "
+            "(docs/sparse_techniques.md, \"One cell's PSNR under rounding alone\"): compare cells of one machine."]
+
+
 def markdown(rows: list[dict], meta: dict) -> str:
     lines = [f"# Sparse-view benchmark ({meta['date']})", "",
              "Protocols: LLFF 3 views (images_8 504x378, test every 8th image, train round(linspace) over the rest); "
@@ -320,7 +334,8 @@ def markdown(rows: list[dict], meta: dict) -> str:
              "background). PSNR / SSIM (3DGS Gaussian window) / LPIPS v0.1 VGG (AlexNet beside it) at those sizes; "
              "mean ± std over seeds (sample std); train s = the optimisation loop, total s = every phase but "
              "evaluation (plan, SfM / dense init, training, prior rounds).",
-             f"Command: `{meta['command']}`. Machine: {meta['machine']}.", ""]
+             f"Command: `{meta['command']}`. Machine: {meta['machine']}.", *machines_note(meta.get("cell_machines")),
+             ""]
     for protocol in PROTOCOLS:
         sel = [r for r in rows if r["protocol"] == protocol]
         if not sel:
@@ -431,11 +446,13 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
         records.append({"protocol": protocol, "scene": scene, "variant": variant, "seed": seed,
                         "folder": str(folder), "settings": job_settings,
                         "metrics": cell_numbers(metrics), "profile": step_profile(metrics),
-                        "init": metrics.get("init"), "lpips_reason": metrics.get("lpips_reason")})
+                        "init": metrics.get("init"), "lpips_reason": metrics.get("lpips_reason"),
+                        "machine": machine_label(metrics.get("machine"))})
     rows = summarise(records)
     meta = {"date": time.strftime("%Y-%m-%d"), "command": command or "gsgs bench sparse",
-            "machine": (f"{os.cpu_count()} CPU cores" + _gpu_note() if ray is None
+            "machine": (f"{cpu_model()}, {os.cpu_count()} CPU cores" + _gpu_note() if ray is None
                         else f"Ray cluster at {ray.address} ({ray.cpus:g} CPU, {ray.gpus:g} GPU a cell)"),
+            "cell_machines": sorted({r["machine"] for r in records}),
             "variants": variants,
             "seconds": round(time.perf_counter() - t_start, 1), "failures": failures, "not_run": not_run}
     doc.parent.mkdir(parents=True, exist_ok=True)
