@@ -1,6 +1,6 @@
 """Which machine a run's numbers came from: recorded in every metrics.json and in `gsgs bench sparse`'s tables.
 
-The same job trains a different model on another processor: the math libraries (MKL's matrix products in the dense
+The same job trains a different model on another processor: the math libraries (MKL's calls in the dense
 initialisation's plane sweep, among others) take other code paths on AVX-512 than on AVX2 and round differently, and
 a protocol cell's PSNR moves by up to a quarter of a dB with nothing else changed (docs/sparse_techniques.md, "One
 cell's PSNR under rounding alone"). Comparing cells from two machines then measures the machines, so each run says

@@ -97,6 +97,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         setup = results["setup"]
         assert setup["format"] == "panoptic" and len(setup["train_cameras"]) == int(n)
         assert setup["test_cameras"] == TEST_IDS and setup["frames"] == 3 and setup["lpips"] == "none"
+        assert setup["machine"]["cpu"] and setup["machine"]["threads"] >= 1  # which machine (gsgs_engine.machine)
         assert "change over time" in results["region"]
         assert results["4d"]["init"]["method"] == "mvs" and results["static_all"]["init"]["method"] != "random"
         assert results["rig"]["rig"] in ("object orbit", "forward-facing", "inward shell")

@@ -29,7 +29,7 @@ import threading
 import time
 from pathlib import Path
 
-from gsgs_engine.machine import cpu_model, machine_label
+from gsgs_engine.machine import machine_label, machine_record
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 BLENDER_TRAIN_IDS = ["r_2", "r_16", "r_26", "r_55", "r_73", "r_76", "r_86", "r_93"]
@@ -450,7 +450,7 @@ def run_bench(protocols: list[str], scenes: list[str] | None, variants: dict[str
                         "machine": machine_label(metrics.get("machine"))})
     rows = summarise(records)
     meta = {"date": time.strftime("%Y-%m-%d"), "command": command or "gsgs bench sparse",
-            "machine": (f"{cpu_model()}, {os.cpu_count()} CPU cores" + _gpu_note() if ray is None
+            "machine": (f"{machine_label(machine_record())}, {os.cpu_count()} CPU cores" if ray is None
                         else f"Ray cluster at {ray.address} ({ray.cpus:g} CPU, {ray.gpus:g} GPU a cell)"),
             "cell_machines": sorted({r["machine"] for r in records}),
             "variants": variants,
@@ -500,14 +500,6 @@ def run_cells_on_cluster(cells: list[tuple], indices: list[int], total: int, ray
                 (folder / "cancel.request").touch()
             raise
     return {indices[k]: results[k] for k in range(len(cells))}
-
-
-def _gpu_note() -> str:
-    try:
-        import torch
-    except ImportError:
-        return ""
-    return f", {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else ", no GPU"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
