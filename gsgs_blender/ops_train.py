@@ -143,10 +143,11 @@ class GSGS_OT_train(bpy.types.Operator):
             job = Job.create(new_job_dir(context, "train"), "train", **train_spec(context))
             probe_machine(context)
             inputs = train_estimate.job_estimate_inputs(scene)
+            device = train_estimate.device_of(get_prefs(context))
             # stated before the job runs (headless: before it ends)
-            estimate = train_estimate.estimate_text(scene, inputs)
+            estimate = train_estimate.estimate_text(scene, inputs, device)
             if inputs is not None:  # what is estimated now; the finished job's time corrects later estimates
-                train_estimate.write_job_estimate(job.root, **inputs)
+                train_estimate.write_job_estimate(job.root, **inputs, device=device)
             scene.gsgs.train_job = stored_path(job.root)
             run = launch(context, job, on_finish=scene_callback(scene.name, _on_train_finished), timeout=self.timeout)
         except GsgsError as exc:

@@ -10,6 +10,7 @@ from gsgs_engine import presets
 
 from . import job_runner, pseudo_paths, train_estimate
 from .ops_common import job_run
+from .preferences import get_prefs
 
 
 def draw_job(layout, path: str, kind: str) -> None:
@@ -146,7 +147,7 @@ class GSGS_PT_train(_GsgsPanel, bpy.types.Panel):
         poses = len(pseudo_paths.poses_from_json(s.pseudo_poses))
         if poses and s.generator == "none":
             layout.label(text=f"The {poses} path poses are unused: choose a Generator", icon="INFO")
-        estimate = train_estimate.estimate_text(context.scene)
+        estimate = train_estimate.estimate_text(context.scene, device=train_estimate.device_of(get_prefs(context)))
         if estimate:
             layout.label(text=f"Estimated: {estimate}", icon="TIME")
         layout.operator("gsgs.train", icon="PLAY")

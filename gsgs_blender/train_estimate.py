@@ -45,6 +45,15 @@ a two-thread training. The
 Santorini workflow on a fresh log with a two-thread training beside it stated 169 s (the probe's factor 1.75) and
 trained in 200.9 s: 16 % short, where the references alone (96.7 s) would have been 52 % short. The probe renders SH
 degree 3, whose projection session 11 made about twice as fast: its reference was measured again with the cells.
+
+On a GPU (the job trains with gsplat: Device "cuda", or "auto" where the last machine probe found a CUDA device that
+gsplat can use) the estimate starts from the same protocol cells trained on CUDA instead (REFERENCES_CUDA: one NVIDIA
+H200, seed 0, 1000 steps, one cell at a time, 2026-12-04, docs/speed.md "Session 33"): the orbit recipe on lego 12.2
+s, the forward-facing recipe on flower 24.6 s. Plain 3DGS was not timed there, so a plain job on a GPU gets no
+figure (the panel says so, beside the CPU's) and teaches nothing. The CPU probe does not apply to a GPU; the view-size scaling and the
+long-schedule factors are the CPU's (not measured on a GPU), and the user's GPU is not that H200: GPU jobs teach
+their own correction (recipe keys "orbit@cuda" and so on), separate from the CPU's, from the first finished one.
+gsplat's one-time kernel build on a new machine (86 s on the H200) is not in the figure; the text says so.
 """
 
 from __future__ import annotations
@@ -65,6 +74,11 @@ REFERENCES = {
     "orbit": (97.7, 400 * 400),
     "forward": (197.9, 504 * 378),  # the 1000-step recipe, which densifies by absolute gradients
 }
+# recipe -> seconds for REFERENCE_ITERS steps on CUDA, the same cells as REFERENCES (pixels as there), trained with
+# `"backend": "cuda"` on one NVIDIA H200 (2026-12-04, docs/speed.md "Session 33"); plain 3DGS not measured there
+REFERENCES_CUDA = {"orbit": 12.2, "forward": 24.6}
+GPU_REFERENCE_DEVICE = "NVIDIA H200"
+DEVICES = ("cpu", "cuda")
 # The orbit recipe of long schedules renders the binocular view at every step, not every second one: lego auto at
 # 1000 steps took 201 s that way against 157 s, back to back on a quiet machine (2026-11-26, docs/speed.md).
 ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
@@ -119,14 +133,48 @@ def recipe(generator: str, cameras=None) -> str:
     return "forward"
 
 
+def job_device(device_setting: str, path: Path | None = None) -> str:
+    """"cuda" when a job with the add-on's Device setting trains on a GPU as far as the add-on can tell ("cuda", or
+    "auto" where the last machine probe found a CUDA device gsplat can use), else "cpu"."""
+    if device_setting == "cuda":
+        return "cuda"
+    if device_setting == "auto":
+        try:
+            raw = json.loads((probe_path() if path is None else path).read_text())
+            if isinstance(raw, dict) and raw.get("cuda"):
+                return "cuda"
+        except (OSError, ValueError, GsgsError):
+            pass
+    return "cpu"
+
+
+def device_of(prefs) -> str:
+    """job_device for the add-on's preferences: a job run elsewhere (a Ray cluster) keeps the CPU figure, as before."""
+    if getattr(prefs, "run_on", "local") != "local":
+        return "cpu"
+    return job_device(getattr(prefs, "device", "auto"))
+
+
+def timing_key(kind: str, device: str = "cpu") -> str:
+    """The timings log's recipe key: "orbit" on the CPU, "orbit@cuda" on a GPU."""
+    if device not in DEVICES:
+        raise GsgsError(f"unknown training device {device!r}; choose one of {', '.join(DEVICES)}")
+    return kind if device == "cpu" else f"{kind}@{device}"
+
+
 def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str,
-                     max_side: int = 0, cameras=None) -> float:
-    """Rough CPU seconds of a training run of `iterations` steps on views of width x height, from the reference
-    runs alone (`machine_factor` corrects it for this machine)."""
+                     max_side: int = 0, cameras=None, device: str = "cpu") -> float | None:
+    """Rough seconds of a training run of `iterations` steps on views of width x height, from the reference
+    runs alone (`machine_factor` corrects it for this machine); on device "cuda" from the GPU references, None where
+    the recipe has none there."""
     from gsgs_engine.effect_plan import AUTO_LONG_STEPS
 
     kind = recipe(generator, cameras)
     seconds, ref_pixels = REFERENCES[kind]
+    if timing_key(kind, device) != kind:
+        if kind not in REFERENCES_CUDA:
+            return None
+        seconds = REFERENCES_CUDA[kind]
     if kind == "orbit" and iterations >= AUTO_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
     if kind == "forward" and (generator != "auto" or iterations >= AUTO_LONG_STEPS):  # no absolute gradients
@@ -159,7 +207,9 @@ def read_timings(path: Path | None = None) -> list[dict]:
     for line in lines:
         try:
             rec = json.loads(line)
-            if float(rec["estimated_s"]) > 0 and float(rec["train_s"]) > 0 and rec.get("recipe") in REFERENCES:
+            kind, _, device = str(rec.get("recipe")).partition("@")
+            if (float(rec["estimated_s"]) > 0 and float(rec["train_s"]) > 0 and kind in REFERENCES
+                    and (device or "cpu") in DEVICES):
                 records.append(rec)
         except (ValueError, KeyError, TypeError):
             continue
@@ -202,7 +252,13 @@ def refresh_probe(python: str, engine_root: str | None = None, max_age_s: float 
     except (OSError, ValueError, subprocess.SubprocessError):
         return last
     if not (isinstance(result.get("probe_ms"), (int, float)) and result["probe_ms"] > 0):
-        return last  # e.g. {"error": "the compiled CPU kernel is not built yet ..."}
+        if result.get("cuda") and last is None:  # no CPU kernel, but a GPU: keep that (job_device reads it)
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(json.dumps({"time": time.time(), "cuda": result["cuda"]}))
+            except OSError:
+                pass
+        return last  # e.g. {"error": "the compiled CPU kernel is not built yet ...", "cuda": null}
     probe = {"time": time.time(), **result}
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -222,10 +278,12 @@ def probe_factor(path: Path | None = None) -> float:
     return min(max(float(probe["probe_ms"]) / PROBE_REFERENCE_MS, FACTOR_RANGE[0]), FACTOR_RANGE[1])
 
 
-def machine_factor(kind: str, path: Path | None = None) -> tuple[float, int]:
-    """(measured / estimated, jobs it comes from) for recipe `kind` on this machine; (1.0, 0) before any job."""
-    records = read_timings(path)
-    same = [r for r in records if r["recipe"] == kind]
+def machine_factor(kind: str, path: Path | None = None, device: str = "cpu") -> tuple[float, int]:
+    """(measured / estimated, jobs it comes from) for recipe `kind` on this machine's `device`; (1.0, 0) before any
+    job there. Before a job of the recipe, the device's other recipes speak for it (never the other device's)."""
+    key = timing_key(kind, device)
+    records = [r for r in read_timings(path) if ("@" in r["recipe"]) == (key != kind)]
+    same = [r for r in records if r["recipe"] == key]
     use = (same or records)[-USE_LAST:]
     if not use:
         return 1.0, 0
@@ -234,14 +292,16 @@ def machine_factor(kind: str, path: Path | None = None) -> tuple[float, int]:
 
 
 def write_job_estimate(job_dir, iterations: int, width: int, height: int, resolution_scale: float, generator: str,
-                       max_side: int = 0, cameras=None) -> dict:
+                       max_side: int = 0, cameras=None, device: str = "cpu") -> dict:
     """Keep the estimate of a job about to start in its folder (estimate.json): the references scaled by the last
-    probe, before the learned correction, which it will then teach; returns it."""
-    reference_s = estimate_seconds(iterations, width, height, resolution_scale, generator, max_side, cameras)
-    speed = probe_factor()
-    record = {"recipe": recipe(generator, cameras), "iterations": int(iterations),
-              "size": list(train_size(width, height, resolution_scale, max_side)),
-              "reference_s": reference_s, "probe_factor": speed, "estimated_s": reference_s * speed}
+    probe (on the CPU), before the learned correction, which it will then teach; returns it. A recipe without a
+    reference on the device (plain 3DGS on a GPU) is kept with estimated_s None, and is not learned from."""
+    reference_s = estimate_seconds(iterations, width, height, resolution_scale, generator, max_side, cameras, device)
+    speed = probe_factor() if device == "cpu" else 1.0
+    record = {"recipe": timing_key(recipe(generator, cameras), device), "device": device,
+              "iterations": int(iterations), "size": list(train_size(width, height, resolution_scale, max_side)),
+              "reference_s": reference_s, "probe_factor": speed,
+              "estimated_s": None if reference_s is None else reference_s * speed}
     try:
         (Path(job_dir) / ESTIMATE_FILE).write_text(json.dumps(record))
     except OSError:  # the job runs all the same; it is only not learned from
@@ -257,14 +317,18 @@ def learn_from_job(job_dir, path: Path | None = None) -> str:
         metrics = json.loads((job_dir / "result" / "metrics.json").read_text())
     except (OSError, ValueError) as exc:
         return f"not learned from: {exc}"
+    if estimate.get("estimated_s") is None:
+        return f"not learned from: {estimate.get('recipe')} has no measured reference to correct"
     train_s, iters = metrics.get("train_seconds"), metrics.get("iterations")
     if not isinstance(train_s, (int, float)) or not isinstance(iters, int) or iters != estimate.get("iterations"):
         return "not learned from: the job's metrics do not match its estimate (resumed or changed?)"
     if iters < MIN_LEARN_ITERS or train_s < MIN_LEARN_SECONDS:
         return f"not learned from: {iters} steps in {train_s:.1f} s is too short to time this machine"
     backend = (metrics.get("plan") or {}).get("backend")  # the renderer the job used (gsgs_engine.reconstruct)
-    if backend not in (None, "cpu", "reference"):
-        return f"not learned from: trained on {backend}, the estimate is for the CPU"
+    ran_on = "cuda" if backend == "cuda" else "cpu" if backend in (None, "cpu", "cpu_legacy", "reference") else backend
+    estimated_for = estimate.get("device", "cpu")
+    if ran_on != estimated_for:
+        return f"not learned from: trained on {backend}, the estimate is for the {estimated_for.upper()}"
     record = {"time": time.strftime("%Y-%m-%d %H:%M:%S"), "recipe": estimate["recipe"], "iterations": iters,
               "size": estimate.get("size"), "estimated_s": float(estimate["estimated_s"]), "train_s": float(train_s)}
     try:  # the log is a convenience: a folder that cannot be written never stops a result from being imported
@@ -289,19 +353,29 @@ def format_duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def estimate_text(scene, inputs: dict | None = None) -> str:
+def estimate_text(scene, inputs: dict | None = None, device: str = "cpu") -> str:
     """'~N min on this machine ...' for the scene's training cameras and Train fields ('' without cameras);
-    `inputs`: job_estimate_inputs(scene) when the caller has it already."""
+    `inputs`: job_estimate_inputs(scene) when the caller has it already; `device`: job_device(the Device setting)."""
     inputs = job_estimate_inputs(scene) if inputs is None else inputs
     if inputs is None:
         return ""
-    seconds = estimate_seconds(**inputs)
     w, h = train_size(inputs["width"], inputs["height"], inputs["resolution_scale"], inputs["max_side"])
     kind = recipe(inputs["generator"], inputs["cameras"])
+    name = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[kind]
+    if device != "cpu":
+        seconds = estimate_seconds(**inputs, device=device)
+        if seconds is None:
+            return (f"{name} on a GPU has no measured reference ({inputs['iterations']} steps on {w}x{h} px; far "
+                    f"less than the ~{format_duration(estimate_seconds(**inputs))} a 2-core CPU takes)")
+        factor, jobs = machine_factor(kind, device=device)
+        where = (f"on this GPU, from {jobs} finished GPU job{'s' if jobs != 1 else ''}" if jobs else
+                 f"on a GPU (measured on an {GPU_REFERENCE_DEVICE}; a first job on a new machine also builds "
+                 "gsplat's kernels, about 1.5 min)")
+        return f"~{format_duration(seconds * factor)} {where} ({inputs['iterations']} steps of {name} on {w}x{h} px)"
+    seconds = estimate_seconds(**inputs)
     factor, jobs = machine_factor(kind)
     probed = read_probe() is not None and bool(PROBE_REFERENCE_MS)
     factor *= probe_factor()
-    name = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[kind]
     finished = f"{jobs} finished job{'s' if jobs != 1 else ''}"
     if probed:
         where = "on this machine (its speed probed" + (f", corrected by {finished})" if jobs else ")")

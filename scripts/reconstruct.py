@@ -102,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
             print("reconstruct: note: the path's pseudo poses are used only with a prior (--prior auto)", flush=True)
         ops_train.probe_machine(bpy.context)  # the estimate follows this machine's measured speed
         print(f"reconstruct: training {s.iterations} iterations (preset {s.preset}); estimated "
-              f"{train_estimate.estimate_text(scene)}", flush=True)
+              f"{train_estimate.estimate_text(scene, device=train_estimate.device_of(preferences.get_prefs()))}",
+              flush=True)
         bpy.ops.gsgs.train(timeout=args.timeout)
     except RuntimeError as exc:  # an operator reported an error
         print(f"reconstruct: error: {str(exc).strip()}", file=sys.stderr)

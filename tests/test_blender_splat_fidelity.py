@@ -237,6 +237,69 @@ def test_training_estimate_learns_this_machine_from_finished_jobs(tmp_path, monk
     assert "cannot be written" in te.learn_from_job(job("l", 1000, plain), blocked / "timings.jsonl")
 
 
+def test_training_estimate_on_a_gpu_starts_from_the_cuda_cells_and_learns_apart(tmp_path, monkeypatch):
+    """A job that trains on a GPU (Device "cuda", or "auto" where the probe found one) is estimated from the protocol
+    cells trained on CUDA, not the CPU's (no CPU probe factor), says where its figure comes from, and its measured
+    seconds correct later GPU estimates only; plain 3DGS, not timed on a GPU, gets no GPU figure and teaches nothing."""
+    import json
+    import time
+    from types import SimpleNamespace
+
+    from gsgs_blender import train_estimate as te
+    from gsgs_engine import GsgsError
+
+    log = tmp_path / "timings.jsonl"
+    monkeypatch.setenv("GSGS_TIMINGS", str(log))
+    assert te.job_device("cuda") == "cuda" and te.job_device("cpu") == "cpu"
+    assert te.job_device("auto") == "cpu"  # no probe yet: nothing says there is a GPU
+    for content, device in [(json.dumps({"time": time.time(), "cuda": "NVIDIA RTX A4000"}), "cuda"),
+                            (json.dumps({"time": time.time(), "probe_ms": 20.0, "threads": 2, "cuda": None}), "cpu"),
+                            ("{not json", "cpu")]:
+        te.probe_path().write_text(content)
+        assert te.job_device("auto") == device and te.job_device("cpu") == "cpu"
+    assert te.device_of(SimpleNamespace(run_on="local", device="cuda")) == "cuda"
+    assert te.device_of(SimpleNamespace(run_on="ray", device="cuda")) == "cpu"  # elsewhere: the CPU figure as before
+    with pytest.raises(GsgsError, match="training device"):
+        te.timing_key("orbit", "metal")
+
+    # at the reference cells' size and length the GPU estimate is the CUDA cell itself; the CPU probe is not applied
+    te.probe_path().write_text(json.dumps({"time": time.time(), "probe_ms": te.PROBE_REFERENCE_MS * 3, "threads": 2,
+                                           "cuda": "NVIDIA RTX A4000"}))
+    assert te.probe_factor() == pytest.approx(3.0)
+    gpu = te.estimate_seconds(1000, 504, 378, 1.0, "auto", device="cuda")
+    assert gpu == pytest.approx(te.REFERENCES_CUDA["forward"])
+    assert gpu < te.estimate_seconds(1000, 504, 378, 1.0, "auto") / 4
+    assert te.estimate_seconds(1000, 504, 378, 1.0, "none", device="cuda") is None
+    inputs = {"iterations": 1000, "width": 504, "height": 378, "resolution_scale": 1.0, "generator": "auto",
+              "max_side": 0, "cameras": None}
+    text = te.estimate_text(None, inputs, "cuda")
+    assert text.startswith("~25 s on a GPU") and te.GPU_REFERENCE_DEVICE in text and "gsplat" in text
+    plain_text = te.estimate_text(None, {**inputs, "generator": "none"}, "cuda")
+    assert "no measured reference" in plain_text and "2-core CPU" in plain_text
+
+    def job(name: str, generator: str, device: str, train_s: float, backend: str) -> Path:
+        folder = tmp_path / name
+        (folder / "result").mkdir(parents=True)
+        rec = te.write_job_estimate(folder, 1000, 504, 378, 1.0, generator, device=device)
+        (folder / "result" / "metrics.json").write_text(json.dumps(
+            {"train_seconds": train_s, "iterations": 1000, "plan": {"backend": backend}}))
+        return folder, rec
+
+    folder, rec = job("gpu", "auto", "cuda", 2.0 * gpu, "cuda")
+    assert rec["recipe"] == "forward@cuda" and rec["probe_factor"] == 1.0 and rec["estimated_s"] == pytest.approx(gpu)
+    assert te.learn_from_job(folder, log).startswith("learned")
+    assert te.machine_factor("forward", log, device="cuda") == (pytest.approx(2.0), 1)
+    assert te.machine_factor("orbit", log, device="cuda") == (pytest.approx(2.0), 1)  # the GPU's other recipe
+    assert te.machine_factor("forward", log) == (1.0, 0)  # the CPU's figures learn nothing from a GPU job
+    assert "from 1 finished GPU job" in te.estimate_text(None, inputs, "cuda")
+    assert te.estimate_text(None, inputs, "cuda").startswith("~49 s")  # 2 x 24.6 s
+    folder, rec = job("fell-back", "auto", "cuda", 100.0, "cpu")  # estimated for the GPU, trained on the CPU
+    assert "the estimate is for the CUDA" in te.learn_from_job(folder, log)
+    folder, rec = job("plain-gpu", "none", "cuda", 10.0, "cuda")
+    assert rec["estimated_s"] is None and "no measured reference" in te.learn_from_job(folder, log)
+    assert [r["recipe"] for r in te.read_timings(log)] == ["forward@cuda"]
+
+
 def test_training_estimate_follows_the_machine_probe(tmp_path, monkeypatch):
     """The Train operator's probe (`gsgs bench machine`, the real engine in a subprocess) scales the references by
     this machine's speed; it is kept and reused while young, a broken interpreter or file never fails a job, and
@@ -273,7 +336,10 @@ def test_machine_probe_never_compiles_the_kernel(tmp_path):
     done = subprocess.run([sys.executable, "-m", "gsgs_engine", "bench", "machine"], capture_output=True, text=True,
                           env=env, timeout=120)
     assert done.returncode == 3, done.stderr
-    assert "not built" in json.loads(done.stdout.strip().splitlines()[-1])["error"]
+    line = json.loads(done.stdout.strip().splitlines()[-1])
+    assert "not built" in line["error"]
+    from gsgs_engine.render import cuda_backend
+    assert "cuda" in line and (line["cuda"] is None) == (not cuda_backend.available())  # a GPU is reported all the same
     assert not any((tmp_path / "empty").rglob("*.so"))
 
 

@@ -9,6 +9,10 @@ The add-on divides it by the same probe's time on the machine and day its refere
 (gsgs_blender/train_estimate.py, PROBE_REFERENCE_MS), so its first estimate on a new machine, or on a slow day of a
 shared one, follows the machine instead of the reference's. It never compiles the kernel (minutes): without a
 built kernel it prints a JSON line with "error" and exits 3, and the estimate goes unprobed.
+
+Both lines also say whether a job set to Device "auto" would train on a GPU here: "cuda" holds the CUDA device's
+name where torch sees one and gsplat imports (the CUDA backend's own check), else null; the add-on then states a
+GPU estimate (train_estimate.job_device).
 """
 
 from __future__ import annotations
@@ -64,14 +68,25 @@ def probe(repeats: int = PROBE_REPEATS, threads: int | None = None) -> dict:
             "side": PROBE_SIDE, "repeats": repeats}
 
 
+def cuda_device() -> str | None:
+    """The CUDA device gsplat would train on here (its name), or None (no CUDA device, or gsplat does not import)."""
+    import torch
+
+    from gsgs_engine.render import cuda_backend
+
+    return torch.cuda.get_device_name(0) if cuda_backend.available() else None
+
+
 def run(args) -> int:
     from gsgs_engine import GsgsError
 
+    gpu = cuda_device()
     try:
         result = probe(args.repeats, args.threads)
     except GsgsError as exc:
-        print(json.dumps({"error": str(exc)}), flush=True)
+        print(json.dumps({"error": str(exc), "cuda": gpu}), flush=True)
         return 3
+    result["cuda"] = gpu
     print(json.dumps(result), flush=True)
     print(f"gsgs bench machine: {result['probe_ms']:.1f} ms for a {result['gaussians']}-Gaussian "
           f"{result['side']} px render with backward on {result['threads']} thread(s)", file=sys.stderr)
