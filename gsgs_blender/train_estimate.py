@@ -50,9 +50,9 @@ On a GPU (the job trains with gsplat: Device "cuda", or "auto" where the last ma
 gsplat can use) the estimate starts from the same protocol cells trained on CUDA instead (REFERENCES_CUDA: one NVIDIA
 H200, seed 0, 1000 steps, one cell at a time, 2026-12-04, docs/speed.md "Session 33"): the orbit recipe on lego 12.2
 s, the forward-facing recipe on flower 24.6 s. Plain 3DGS was not timed there, so a plain job on a GPU gets no
-figure (the panel says so, beside the CPU's) and teaches nothing. The CPU probe does not apply to a GPU; the view-size scaling and the
-long-schedule factors are the CPU's (not measured on a GPU), and the user's GPU is not that H200: GPU jobs teach
-their own correction (recipe keys "orbit@cuda" and so on), separate from the CPU's, from the first finished one.
+figure (the panel says so, beside the CPU's) and teaches nothing. The CPU probe does not apply to a GPU; the
+view-size scaling and the long-schedule factors are the CPU's (not measured on a GPU), and the user's GPU is not that
+H200: GPU jobs teach their own correction (recipe keys "orbit@cuda" and so on), separate from the CPU's, from the first finished one.
 gsplat's one-time kernel build on a new machine (86 s on the H200) is not in the figure; the text says so.
 """
 
@@ -171,7 +171,8 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
 
     kind = recipe(generator, cameras)
     seconds, ref_pixels = REFERENCES[kind]
-    if timing_key(kind, device) != kind:
+    timing_key(kind, device)  # an unknown device stops here
+    if device != "cpu":
         if kind not in REFERENCES_CUDA:
             return None
         seconds = REFERENCES_CUDA[kind]
@@ -253,21 +254,22 @@ def refresh_probe(python: str, engine_root: str | None = None, max_age_s: float 
         return last
     if not (isinstance(result.get("probe_ms"), (int, float)) and result["probe_ms"] > 0):
         if result.get("cuda") and last is None:  # no CPU kernel, but a GPU: keep that (job_device reads it)
-            try:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(json.dumps({"time": time.time(), "cuda": result["cuda"]}))
-            except OSError:
-                pass
+            _write_probe(path, {"time": time.time(), "cuda": result["cuda"]})
         return last  # e.g. {"error": "the compiled CPU kernel is not built yet ...", "cuda": null}
     probe = {"time": time.time(), **result}
+    _write_probe(path, probe)  # used for this estimate even where it cannot be kept
+    return probe
+
+
+def _write_probe(path: Path, probe: dict) -> None:
+    """Replace the probe file with `probe` in one step; a folder that cannot be written is not an error."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(probe))
         os.replace(tmp, path)
     except OSError:
-        pass  # used for this estimate all the same
-    return probe
+        pass
 
 
 def probe_factor(path: Path | None = None) -> float:

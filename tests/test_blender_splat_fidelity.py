@@ -277,7 +277,7 @@ def test_training_estimate_on_a_gpu_starts_from_the_cuda_cells_and_learns_apart(
     plain_text = te.estimate_text(None, {**inputs, "generator": "none"}, "cuda")
     assert "no measured reference" in plain_text and "2-core CPU" in plain_text
 
-    def job(name: str, generator: str, device: str, train_s: float, backend: str) -> Path:
+    def job(name: str, generator: str, device: str, train_s: float, backend: str) -> tuple[Path, dict]:
         folder = tmp_path / name
         (folder / "result").mkdir(parents=True)
         rec = te.write_job_estimate(folder, 1000, 504, 378, 1.0, generator, device=device)
