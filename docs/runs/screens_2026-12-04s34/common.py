@@ -1,3 +1,5 @@
+"""Shared set-up of the session-34 analysis scripts (run with exec, next to them): the scene, the trained model, its
+renders and the training photos with their rendered depths. argv: DATA_DIR TRAIN_VIEWS PLY."""
 import numpy as np, torch, sys
 from gsgs_engine.gaussians import GaussianModel
 from gsgs_engine.io import load_scene

@@ -1,7 +1,7 @@
 """Session 34: post-hoc pruning of Gaussians that no training view draws (sum of blend weights over its pixels),
 test PSNR before and after. usage: python contrib_prune.py DATA_DIR TRAIN_VIEWS PLY"""
 import numpy as np, torch, sys
-exec(open('/tmp/s34/cov/common.py').read())
+exec(open(__import__('os').path.join(__import__('os').path.dirname(__file__), 'common.py')).read())
 
 def contributions(cam):
     col = torch.zeros(model.num_gaussians, 1, 3, requires_grad=True)

@@ -4,7 +4,7 @@ import sys
 import cv2
 import numpy as np
 import torch
-exec(open('/tmp/s34/cov/common.py').read())
+exec(open(__import__('os').path.join(__import__('os').path.dirname(__file__), 'common.py')).read())
 
 def pushpull(image, known, levels=8):
     """Fill unknown pixels from a mask-weighted image pyramid (push-pull): smooth, low-frequency."""
