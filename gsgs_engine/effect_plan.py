@@ -216,7 +216,12 @@ MEAN_ELSEWHERE = ("the photos' mean colour behind the splats, --effects backgrou
                   "inward shell but measured mixed on forward-facing LLFF: flower +0.05 dB, horns -1.18")
 MEAN_WHY = ("RGB views: the training photos' mean colour behind the splats (training and every render after it): "
             "what a novel view shows where no splat covers it")
-BACKGROUNDS = ("auto", "transparent", "opaque", "mean", "fixed", "random")
+# "sphere": the photos' mean colour to start, then a texture learned on the sphere through the cameras
+# (gsgs_engine.train.background_sphere): a pixel no splat covers shows the texture where its ray leaves the sphere,
+# which on an inward shell is the wall the cameras hang on, learned from the cameras across from it.
+SPHERE_WHY = ("RGB views: a texture learned on the sphere through the cameras behind the splats (the wall of an "
+              "inward shell), starting from the photos' mean colour; written beside the PLY")
+BACKGROUNDS = ("auto", "transparent", "opaque", "mean", "sphere", "fixed", "random")
 # The rig. A converging rig (the optical axes meet) is an object orbit where the scene lies well inside the
 # cameras' shell (NeRF-synthetic: the object), an inward shell where a real share of it reaches the shell:
 # a dome or studio whose cameras hang on the walls they film (CMU Panoptic). There the walls, filmed by
@@ -632,11 +637,12 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
         if bg == "transparent" and not scene.has_alpha:
             raise GsgsError(f"--effects background=transparent: {scene.source} has no alpha channel; use opaque "
                             "(a random colour behind the photos, so every pixel is learned opaque) or fixed")
-        if bg in ("opaque", "mean") and scene.has_alpha:
+        if bg in ("opaque", "mean", "sphere") and scene.has_alpha:
             raise GsgsError(f"--effects background={bg}: {scene.source} has an alpha channel, which says where the "
                             "scene is see-through; use transparent (alpha learned) or fixed")
-        measured = {"colour": photos_mean_colour(views)} if bg == "mean" else {}
-        effects["background"] = Effect("background", bg != "fixed", bg, "--effects background", "user", measured)
+        measured = {"colour": photos_mean_colour(views)} if bg in ("mean", "sphere") else {}
+        effects["background"] = Effect("background", bg != "fixed", bg, "--effects background" +
+                                       (f": {SPHERE_WHY}" if bg == "sphere" else ""), "user", measured)
 
     # depth regularisation: only with a depth source
     if depth_want is False or not depth_possible:
@@ -756,8 +762,11 @@ def apply_effect_plan(plan: EffectPlan, train_config, prior_config=None):
     """(TrainConfig, PriorConfig) that model exactly the plan's effects (copies; inputs untouched)."""
     from gsgs_engine.priors.config import PriorConfig
 
+    from gsgs_engine.train.background_sphere import DEFAULT_WIDTH as SPHERE_WIDTH
+
     tc = replace(train_config, sh_degree=int(plan["sh_degree"].value),
                  random_background=plan["background"].value in ("transparent", "opaque"),
+                 background_sphere=SPHERE_WIDTH if plan["background"].value == "sphere" else 0,
                  init=str(plan["init"].value))
     rig = plan.effects.get("rig")
     if rig is not None and rig.enabled and rig.measured.get("near"):
@@ -787,7 +796,7 @@ def scene_for_plan(scene, plan: EffectPlan):
     the 4D parameters are then never allocated.
     """
     background = plan["background"]
-    if background.value == "mean":
+    if background.value in ("mean", "sphere"):  # the sphere's texture starts from the photos' mean colour
         scene = replace(scene, background=np.asarray(background.measured["colour"], dtype=np.float32))
     if plan["time"].enabled or not scene.has_time:
         return scene

@@ -89,6 +89,12 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
     from gsgs_engine.io.world_scale import ply_to_world
 
     write_gaussian_ply(out_dir / "point_cloud.ply", ply_to_world(trainer.model.to_ply(), scene.world_scale))
+    if trainer.bg_sphere is not None:  # the learned wall behind the splats, beside the PLY (gsgs eval reads it)
+        from gsgs_engine.train.background_sphere import TEXTURE_FILE
+        from gsgs_engine.write_errors import writing
+
+        with writing(out_dir / TEXTURE_FILE, "the background sphere's texture"):
+            trainer.bg_sphere.write_texture(out_dir / TEXTURE_FILE)
     t0 = time.perf_counter()
     test_views = scene.test if "test" in scene.splits else []
     evaluation = evaluate_views(lambda cam: trainer.render(cam, sh_degree=trainer.model.max_sh_degree),
@@ -108,6 +114,8 @@ def train_and_export(scene, config: TrainConfig, out_dir: Path, checkpoint_dir: 
         "iters": trainer.config.iters, "seed": trainer.config.seed, "schedule": trainer.schedule.to_dict(),
         "scene_extent": trainer.extent, "size_extent": trainer.size_extent, "world_scale": scene.world_scale,
         "novel_view_near": trainer.config.novel_view_near,
+        **({"background_sphere": trainer.bg_sphere.describe(scene.world_scale)} if trainer.bg_sphere is not None
+           else {}),
         "lambda_dssim": trainer.config.lambda_dssim,
         "loss": "(1 - lambda) * L1 + lambda * (1 - SSIM) (eq. 11 without prior terms)",
         "densify_gradient": "|dL/d means2d| in NDC units (pixel gradient * (W/2, H/2)), threshold "

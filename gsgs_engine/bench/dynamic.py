@@ -60,11 +60,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--techniques", default=None,
                         help="sparse-view techniques for every model of the comparison, as gsgs train takes them "
                              "(e.g. exposure,dropout; default none)")
-    parser.add_argument("--background", default="fixed", choices=("fixed", "mean", "opaque"),
+    parser.add_argument("--background", default="fixed", choices=("fixed", "mean", "opaque", "sphere"),
                         help="every model's background: fixed (the scene's), mean (the training photos' mean colour, "
                              "in training and evaluation: what gsgs train --prior auto uses on an inward shell's RGB "
-                             "views) or opaque (a random colour behind each training step's render, the photo "
-                             "unchanged; evaluated on the scene's)")
+                             "views), opaque (a random colour behind each training step's render, the photo "
+                             "unchanged; evaluated on the scene's) or sphere (a texture learned on the sphere through "
+                             "the cameras, starting from the photos' mean colour)")
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--position-lr-scale", type=float, default=1.0,
@@ -179,6 +180,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     from gsgs_engine import GsgsError
     from gsgs_engine.io.ply import write_gaussian_ply
     from gsgs_engine.train.dynamic import SpacetimeTrainer, views_by_frame
+    from gsgs_engine.train.background_sphere import DEFAULT_WIDTH as DEFAULT_SPHERE_WIDTH
     from gsgs_engine.train.trainer import TrainConfig, Trainer
 
     if not scene.test:
@@ -189,7 +191,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     from gsgs_engine.train.techniques.catalogue import parse_techniques
 
     chosen = parse_techniques(techniques, "--techniques")  # checked before anything trains
-    if background == "mean":
+    if background in ("mean", "sphere"):
         from dataclasses import replace
 
         import numpy as np
@@ -204,7 +206,8 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     def config(n_iters: int) -> TrainConfig:
         return TrainConfig(iters=n_iters, sh_degree=sh_degree, backend=backend, seed=seed, init=init,
                            random_init_points=init_points, checkpoint_every=0, novel_view_near=near,
-                           random_background=background == "opaque", position_lr_scale=position_lr_scale)
+                           random_background=background == "opaque", position_lr_scale=position_lr_scale,
+                           background_sphere=DEFAULT_SPHERE_WIDTH if background == "sphere" else 0)
 
     t0 = time.perf_counter()
     _warm_up(backend, scene.test[0].camera)

@@ -88,11 +88,21 @@ def run(args: argparse.Namespace) -> int:
     from gsgs_engine.render.project import DEFAULT_NEAR
 
     near = float(recorded.get("novel_view_near", DEFAULT_NEAR))  # the run's (an inward-shell rig's; else the default)
-    result = evaluate_views(lambda cam: render_model(model, cam, bg, args.backend, near=near), views,
-                            renders_dir=Path(args.renders) if args.renders else None)
+    sphere = None
+    if recorded.get("background_sphere") and args.background is None:  # the run's learned wall behind the splats
+        from gsgs_engine.train.background_sphere import BackgroundSphere
+
+        sphere = BackgroundSphere.from_record(recorded["background_sphere"], ply_path.parent, scene.world_scale,
+                                              device)
+
+    def render_view(cam):
+        out = render_model(model, cam, bg, args.backend, near=near)
+        return out if sphere is None else sphere.composite(out, cam, bg)
+
+    result = evaluate_views(render_view, views, renders_dir=Path(args.renders) if args.renders else None)
     result.update({"ply": str(ply_path), "data": str(args.data), "split": args.split, "backend": args.backend,
                    "resolution_scale": scale, "background": list(background), "num_gaussians": model.num_gaussians,
-                   "near": near})
+                   "near": near, "background_sphere": sphere is not None})
     if not all(math.isfinite(result[k]) for k in ("psnr", "ssim")):
         raise GsgsError(f"{ply_path}: evaluation gave PSNR {result['psnr']} / SSIM {result['ssim']} (not finite); "
                         "the renders hold NaN, so the result is damaged: retrain it")

@@ -68,6 +68,9 @@ class TrainConfig:
     # the means' learning rate as a multiple of 3DGS's schedule (LearningRates.position_*, decayed over the run);
     # None: the effect plan's choice (gsgs_engine.effect_plan: the recipe of the rig), 1.0 without a plan
     position_lr_scale: float | None = None
+    # a textured sphere through the cameras behind the splats (gsgs_engine.train.background_sphere): its texture's
+    # width in texels (height half), 0 = the constant background; the effect plan's "sphere" background
+    background_sphere: int = 0
     lr: LearningRates = field(default_factory=LearningRates)
     densify_config: DensifyConfig = field(default_factory=DensifyConfig)
 
@@ -268,6 +271,9 @@ class Trainer:
         self.optimizer: torch.optim.Optimizer | None = None
         self.stats: DensifyStats | None = None
         self.init_info: InitInfo | None = None
+        self.bg_sphere = None  # BackgroundSphere with config.background_sphere (set up in setup())
+        self.bg_optimizer: torch.optim.Optimizer | None = None
+        self._sphere_state: dict | None = None  # a checkpoint's sphere and its Adam state, until setup() makes it
         self.phase_seconds["init"] += time.perf_counter() - t0
 
     # -- set-up -------------------------------------------------------------------------
@@ -317,7 +323,29 @@ class Trainer:
         # count control lowers max_gaussians and the gradient threshold): what a checkpoint records and a resume
         # compares, so a run with techniques resumes after a cancel or a crash.
         self._config_as_set_up = TrainConfig.from_dict(self.config.to_dict())
+        self._make_background_sphere(self._sphere_state)
         self.phase_seconds["init"] += time.perf_counter() - t0
+
+    def _make_background_sphere(self, state: dict | None = None) -> None:
+        """The background sphere of config.background_sphere (from a checkpoint's `state` when resuming), with its
+        own Adam; nothing when it is 0."""
+        from gsgs_engine.train import background_sphere as bs
+
+        self.bg_sphere, self.bg_optimizer = None, None
+        if not self.config.background_sphere:
+            return
+        if state is not None:
+            self.bg_sphere = bs.BackgroundSphere.from_state_dict(state["sphere"], self.device)
+        else:
+            self.bg_sphere = bs.BackgroundSphere.through([v.camera for v in self.train_views],
+                                                         self.background.cpu().numpy(), self.config.background_sphere,
+                                                         self.device)
+        self.bg_optimizer = torch.optim.Adam([self.bg_sphere.logits], lr=bs.LEARNING_RATE, eps=1e-15)
+        if state is not None:
+            self.bg_optimizer.load_state_dict(state["adam"])
+        w, h = self.bg_sphere.size
+        self.log(f"background: a {w}x{h} texture on the sphere through the cameras (centre "
+                 f"{np.round(self.bg_sphere.centre, 3).tolist()}, radius {self.bg_sphere.radius:.3g})")
 
     def _position_lr(self, step: int) -> float:
         """The means' learning rate at `step`: 3DGS's log-linear decay x the scene extent x position_lr_scale."""
@@ -370,9 +398,13 @@ class Trainer:
         from gsgs_engine.render import render
 
         inputs = self.gaussians_for(camera, sh_degree)
-        return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
-                      sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend, near=self.config.novel_view_near, sh_rest=inputs.get("sh_rest"))
+        bg = self.background if background is None else background
+        out = render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
+                     sh_degree=inputs["sh_degree"], background=bg,
+                     backend=self.config.backend, near=self.config.novel_view_near, sh_rest=inputs.get("sh_rest"))
+        if self.bg_sphere is not None:
+            out = self.bg_sphere.composite(out, camera, bg)
+        return out
 
     def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None,
                             absgrad: bool | None = None):
@@ -386,10 +418,14 @@ class Trainer:
         if ctx is not None:
             for t in self.techniques:
                 inputs = t.render_inputs(ctx, inputs)
-        return render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
-                      sh_degree=inputs["sh_degree"], background=self.background if background is None else background,
-                      backend=self.config.backend, absgrad=self._step_absgrad if absgrad is None else absgrad,
-                      sh_rest=inputs.get("sh_rest"))
+        bg = self.background if background is None else background
+        out = render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
+                     sh_degree=inputs["sh_degree"], background=bg,
+                     backend=self.config.backend, absgrad=self._step_absgrad if absgrad is None else absgrad,
+                     sh_rest=inputs.get("sh_rest"))
+        if self.bg_sphere is not None:
+            out = self.bg_sphere.composite(out, camera, bg)
+        return out
 
     # -- the loop -------------------------------------------------------------------------------
     def _next_view(self) -> int:
@@ -503,6 +539,8 @@ class Trainer:
             cause = nonfinite_cause(terms, loss, model.params)
             self.nan_causes[cause] = self.nan_causes.get(cause, 0) + 1
             self.optimizer.zero_grad(set_to_none=True)
+            if self.bg_optimizer is not None:
+                self.bg_optimizer.zero_grad(set_to_none=True)
             self.nan_steps_skipped += 1
             self.step = step
             self.last_losses = {"loss": float("nan")}
@@ -516,6 +554,9 @@ class Trainer:
                 self.stats.accumulate(self.densify_gradient(r), r.radii.detach(), cam.width, cam.height)
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if self.bg_optimizer is not None:
+            self.bg_optimizer.step()
+            self.bg_optimizer.zero_grad(set_to_none=True)
         t3 = time.perf_counter()
         self.phase_seconds["optimise"] += t3 - t2
 
@@ -596,6 +637,8 @@ class Trainer:
                 "opacity_resets": self.opacity_resets, "size_extent": self.size_extent,
                 "phase_seconds": dict(self.phase_seconds), "densify_log": self.densify_log,
                 "techniques": {t.name: t.state_dict() for t in self.techniques},
+                **({"background_sphere": {"sphere": self.bg_sphere.state_dict(),
+                                          "adam": self.bg_optimizer.state_dict()}} if self.bg_sphere is not None else {}),
                 "scene_fingerprint": self.scene_fingerprint()}
 
     def scene_fingerprint(self) -> dict:
@@ -653,6 +696,7 @@ class Trainer:
             self.phase_seconds[k] = self.phase_seconds.get(k, 0.0) + float(v) if k == "init" else float(v)
         self.densify_log = list(state.get("densify_log", []))
         self._technique_states = dict(state.get("techniques", {}))
+        self._sphere_state = state.get("background_sphere")
 
 
 def validate_config(cfg: TrainConfig) -> None:
@@ -674,5 +718,8 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"--position-lr-scale must be in (0, 100] (got {cfg.position_lr_scale}); 1 is 3DGS's schedule")
     if not (np.isfinite(cfg.novel_view_near) and cfg.novel_view_near > 0):
         raise GsgsError(f"novel_view_near must be a positive distance (got {cfg.novel_view_near})")
+    from gsgs_engine.train.background_sphere import check_width
+
+    check_width(cfg.background_sphere)
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
         raise GsgsError(f"unknown backend {cfg.backend!r}; use auto, reference, cpu or cuda")
