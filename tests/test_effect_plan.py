@@ -122,13 +122,15 @@ def test_rgba_vs_rgb_background():
     rgba, orbit = plan(make_scene(rgba=True)), plan(make_scene(rgba=False))
     rgb = plan(make_scene(rgba=False), overrides={"rig": "inward"})
     plain = plan(make_scene(rgba=False), PriorConfig(prior="none"), overrides={"rig": "inward"})
-    # RGBA: alpha learned. An inward shell's RGB photos under the weights-free recipe: their mean colour is the
-    # background (what a novel view shows where no splat covers it); other rigs and plain 3DGS keep the fixed one
-    assert rgba["background"].value == "transparent" and rgb["background"].value == "mean"
+    # RGBA: alpha learned. An inward shell's RGB photos under the weights-free recipe: a texture learned on the
+    # sphere through the cameras, starting from their mean colour, is the background (what a novel view shows where
+    # no splat covers it); other rigs and plain 3DGS keep the fixed one
+    assert rgba["background"].value == "transparent" and rgb["background"].value == "sphere"
+    assert apply_effect_plan(rgb, TrainConfig(), AUTO)[0].background_sphere == 256
     assert orbit["background"].value == "fixed" and "horns" in orbit["background"].reason
     assert plain["background"].value == "fixed" and plain["background"].enabled is False
     video = plan(make_scene(times=[0.0, 0.5, 1.0]), overrides={"rig": "inward"})  # the 4D model: the same
-    assert video["time"].enabled and video["background"].value == "mean"
+    assert video["time"].enabled and video["background"].value == "sphere"
     rgb_scene = make_scene(rgba=False)
     photos = np.stack([v.image() for v in rgb_scene.train])
     want = photos.reshape(len(photos), -1, 3).mean(axis=1).mean(axis=0)
@@ -154,7 +156,7 @@ def test_rgba_vs_rgb_background():
         "opaque"
     with pytest.raises(GsgsError, match="no alpha.*opaque"):
         plan(make_scene(), overrides={"background": "transparent"})
-    for value in ("opaque", "mean"):
+    for value in ("opaque", "mean", "sphere"):
         with pytest.raises(GsgsError, match="has an alpha channel"):
             plan(make_scene(rgba=True), overrides={"background": value})
 

@@ -62,10 +62,10 @@ def add_arguments(parser) -> None:
                              "(e.g. exposure,dropout; default none)")
     parser.add_argument("--background", default="fixed", choices=("fixed", "mean", "opaque", "sphere"),
                         help="every model's background: fixed (the scene's), mean (the training photos' mean colour, "
-                             "in training and evaluation: what gsgs train --prior auto uses on an inward shell's RGB "
-                             "views), opaque (a random colour behind each training step's render, the photo "
-                             "unchanged; evaluated on the scene's) or sphere (a texture learned on the sphere through "
-                             "the cameras, starting from the photos' mean colour)")
+                             "in training and evaluation), opaque (a random colour behind each training step's "
+                             "render, the photo unchanged; evaluated on the scene's) or sphere (a texture learned on "
+                             "the sphere through the cameras, starting from the photos' mean colour: what gsgs train "
+                             "--prior auto uses on an inward shell's RGB views)")
     parser.add_argument("--models", default=",".join(VARIANTS),
                         help=f"which of {', '.join(VARIANTS)} to train (default all; one model screens a 4D variant)")
     parser.add_argument("--position-lr-scale", type=float, default=1.0,
