@@ -10,7 +10,7 @@ from bpy_extras.io_utils import ImportHelper
 from gsgs_engine import GsgsError
 from gsgs_engine.job import Job
 
-from . import node_groups, ops_setup, splat_import
+from . import background_sphere, node_groups, ops_setup, splat_import
 from .ops_common import job_run, report_error
 
 RESULT_COLLECTION = "GS-GS Result"
@@ -68,7 +68,22 @@ def import_job_result(scene, job_dir: str | Path):
         raise GsgsError(f"{ply}: missing although the job finished; run the job again")
     obj = import_ply(scene, ply)
     obj["gsgs_job"] = str(job.root)
+    import_result_background(scene, job.result_dir, obj)
     return obj
+
+
+def import_result_background(scene, result_dir, splats_obj) -> None:
+    """The result's learned background sphere (an inward-shell run's wall), replacing an earlier one; a line for
+    the import's report. Results without one get nothing (and an earlier sphere is removed with their splats)."""
+    for old in [o for o in scene.objects if "gsgs_background_sphere" in o]:
+        bpy.data.objects.remove(old, do_unlink=True)
+    record = background_sphere.record_of(result_dir)
+    if record is None:
+        return
+    sphere = background_sphere.import_background_sphere(result_dir, record, _collection(scene, RESULT_COLLECTION),
+                                                        scene.gsgs.colour_mode)
+    splats_obj["gsgs_report"] = list(splats_obj.get("gsgs_report", [])) + [
+        f"background: {sphere.name}, the wall learned behind the splats (radius {record['radius']:.3g})"]
 
 
 class GSGS_OT_import_result(bpy.types.Operator):

@@ -17,8 +17,14 @@ def splat_objects(scene) -> list:
 
 
 def set_up(scene, colour_mode: str) -> list[str]:
-    """Apply the splat render settings to `scene` and its splat objects; the lines that changed."""
-    return render_setup.apply(scene, colour_mode, objects=splat_objects(scene))
+    """Apply the splat render settings to `scene` and its splat objects (and a result's background sphere); the
+    lines that changed."""
+    from . import background_sphere
+
+    lines = render_setup.apply(scene, colour_mode, objects=splat_objects(scene))
+    for obj in [o for o in scene.objects if "gsgs_background_sphere" in o]:
+        lines += background_sphere.set_colour_mode(obj, colour_mode)
+    return lines
 
 
 def report_changes(op, lines: list[str]) -> None:
