@@ -115,6 +115,18 @@ def test_training_learns_the_texture_and_resumes_it_bit_identically(tmp_path):
     assert torch.allclose(c.model.means, a.model.means, atol=1e-5)
 
 
+def test_a_sphere_and_a_random_background_together_are_refused():
+    from gsgs_engine.train.trainer import TrainConfig, validate_config
+
+    with pytest.raises(GsgsError, match="two backgrounds"):
+        validate_config(TrainConfig(background_sphere=64, random_background=True))
+    with pytest.raises(GsgsError, match="even texture width"):
+        validate_config(TrainConfig(background_sphere=63))
+    trainer = make_trainer(iters=4, background_sphere=32, random_background=True)  # a trainer built directly
+    with pytest.raises(GsgsError, match="two backgrounds"):
+        trainer.setup()
+
+
 def test_without_the_setting_there_is_no_sphere():
     t = make_trainer(iters=4)
     t.setup()

@@ -334,6 +334,7 @@ class Trainer:
         self.bg_sphere, self.bg_optimizer = None, None
         if not self.config.background_sphere:
             return
+        validate_config(self.config)  # a width the sphere takes, and not together with a random background
         if state is not None:
             self.bg_sphere = bs.BackgroundSphere.from_state_dict(state["sphere"], self.device)
         else:
@@ -721,5 +722,8 @@ def validate_config(cfg: TrainConfig) -> None:
     from gsgs_engine.train.background_sphere import check_width
 
     check_width(cfg.background_sphere)
+    if cfg.background_sphere and cfg.random_background:
+        raise GsgsError("background_sphere and random_background are two backgrounds; use one (the sphere learns the "
+                        "background, a random one teaches opaque splats)")
     if cfg.backend not in ("auto", "reference", "cpu", "cuda"):
         raise GsgsError(f"unknown backend {cfg.backend!r}; use auto, reference, cpu or cuda")
