@@ -3,7 +3,8 @@
     job.json          schema version, task (sfm | train | validate), data, settings
     progress.jsonl    one JSON object a line: phase, step, total, losses, eta_s, message
     status.json       written last, atomically: ok | error | cancelled, with a message
-    result/           point_cloud.ply, metrics.json, pseudo/round_k/*.png, renders
+    result/           point_cloud.ply, metrics.json, pseudo/round_k/*.png, renders,
+                      background_sphere.png (a run with the background sphere: inward shells under auto)
     checkpoints/      enough to resume after a crash or a cancel
     log.txt
 

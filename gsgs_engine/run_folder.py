@@ -19,7 +19,8 @@ import numpy as np
 
 from gsgs_engine import GsgsError
 
-RESULT_FILES = ("metrics.json", "point_cloud.ply", "progress.jsonl", "eval.json", "log.txt", "status.json")
+RESULT_FILES = ("metrics.json", "point_cloud.ply", "progress.jsonl", "eval.json", "log.txt", "status.json",
+                "background_sphere.png")  # the last: train/background_sphere.TEXTURE_FILE (a run with the sphere)
 RESULT_DIRS = ("checkpoints", "renders", "pseudo")
 # settings a resumed run may choose anew: the schedule length (the checkpoint's wins), where it runs,
 # how often it checkpoints, and how the (already made) initial model would have been made
