@@ -4,7 +4,9 @@ An inward-shell run (a dome of cameras) trains a texture on the sphere through i
 (gsgs_engine/train/background_sphere.py) and writes it beside the PLY as background_sphere.png, with its
 centre, radius and mapping in metrics.json (`plan.background_sphere`, world units). Here it becomes a sphere
 mesh at that centre and radius whose emission colour is the texture looked up by the direction from the
-centre, exactly the engine's equirectangular mapping:
+centre, exactly the engine's equirectangular mapping, at the point where the camera ray leaves the shell (its far
+intersection, as the engine takes it). The mesh itself lies far behind the shell (MESH_RADIUS), so every splat is
+in front of it, as in the engine's compositing; its shader traces the ray back to the shell:
 
     u = atan2(y, x) / (2 pi) + 1/2,   v = asin(z) / pi + 1/2      (v = 1: the image's top row, +z)
 
@@ -23,7 +25,26 @@ from pathlib import Path
 import bpy
 
 OBJECT_NAME = "GS-GS Background Sphere"
-SEGMENTS = (128, 64)  # around, pole to pole: the mesh lies within 0.03 % of the radius of the true sphere
+SEGMENTS = (64, 32)  # around, pole to pole (the shader finds the true sphere's point, not the mesh's)
+# The mesh lies at MESH_RADIUS shell radii: behind every splat, as the engine composites the background after all
+# of them (a reconstructed wall's splats lie at and beyond the shell). Its shader traces the camera ray back to
+# where it leaves the shell of radius 1 (object space) and looks the texture up there.
+MESH_RADIUS = 8.0
+
+
+def fit_clip_end(cam_obj, sphere_obj) -> list[str]:
+    """Extend a camera's clip end to reach the back of the sphere's mesh (a camera imported with the scene's far
+    bound would cut it off and show the world instead); the line that changed, if any. The engine's novel views
+    have no far plane, so a larger clip end only brings Blender closer to them."""
+    if cam_obj is None or getattr(cam_obj, "type", None) != "CAMERA":
+        return []
+    centre = sphere_obj.matrix_world.translation
+    reach = ((cam_obj.matrix_world.translation - centre).length + MESH_RADIUS * max(sphere_obj.scale)) * 1.01
+    if cam_obj.data.clip_end >= reach:
+        return []
+    old = cam_obj.data.clip_end
+    cam_obj.data.clip_end = reach
+    return [f"{cam_obj.name} clip end: {old:.4g} -> {reach:.4g} (reaches the background sphere)"]
 
 
 def record_of(result_dir) -> dict | None:
@@ -60,12 +81,19 @@ def _material(image) -> bpy.types.Material:
         mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
-    coords = nodes.new("ShaderNodeTexCoord")
-    norm = nodes.new("ShaderNodeVectorMath")
-    norm.operation = "NORMALIZE"
-    sep = nodes.new("ShaderNodeSeparateXYZ")
-    links.new(coords.outputs["Object"], norm.inputs[0])
-    links.new(norm.outputs["Vector"], sep.inputs[0])
+
+    def vmath(op, a, b=None, scale=None):
+        n = nodes.new("ShaderNodeVectorMath")
+        n.operation = op
+        links.new(a, n.inputs[0])
+        if b is not None:
+            links.new(b, n.inputs[1])
+        if scale is not None:
+            if isinstance(scale, (int, float)):
+                n.inputs["Scale"].default_value = float(scale)
+            else:
+                links.new(scale, n.inputs["Scale"])
+        return n.outputs["Value"] if op == "DOT_PRODUCT" else n.outputs["Vector"]
 
     def math_node(op, a, b=None):
         n = nodes.new("ShaderNodeMath")
@@ -79,13 +107,27 @@ def _material(image) -> bpy.types.Material:
                 links.new(v, n.inputs[i])
         return n.outputs[0]
 
+    # The hit point p on the mesh (object space: the unit is the shell's radius) and the ray's direction d; the
+    # point q where the ray leaves the unit sphere is the last one before p: q = p - u d with
+    # u = p.d - sqrt(max((p.d)^2 - |p|^2 + 1, 0)) (the engine's far root; a miss takes the closest approach).
+    coords = nodes.new("ShaderNodeTexCoord")
+    geometry = nodes.new("ShaderNodeNewGeometry")
+    p = coords.outputs["Object"]
+    d = vmath("SCALE", geometry.outputs["Incoming"], scale=-1.0)
+    pd = vmath("DOT_PRODUCT", p, d)
+    pp = vmath("DOT_PRODUCT", p, p)
+    disc = math_node("MAXIMUM", math_node("ADD", math_node("SUBTRACT", math_node("MULTIPLY", pd, pd), pp), 1.0), 0.0)
+    u = math_node("SUBTRACT", pd, math_node("SQRT", disc))
+    q = vmath("NORMALIZE", vmath("SUBTRACT", p, vmath("SCALE", d, scale=u)))
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(q, sep.inputs[0])
     lon = math_node("ARCTAN2", sep.outputs["Y"], sep.outputs["X"])
-    u = math_node("ADD", math_node("DIVIDE", lon, 2.0 * math.pi), 0.5)
+    u_tex = math_node("ADD", math_node("DIVIDE", lon, 2.0 * math.pi), 0.5)
     lat = math_node("ARCSINE", sep.outputs["Z"])
-    v = math_node("ADD", math_node("DIVIDE", lat, math.pi), 0.5)
+    v_tex = math_node("ADD", math_node("DIVIDE", lat, math.pi), 0.5)
     uv = nodes.new("ShaderNodeCombineXYZ")
-    links.new(u, uv.inputs["X"])
-    links.new(v, uv.inputs["Y"])
+    links.new(u_tex, uv.inputs["X"])
+    links.new(v_tex, uv.inputs["Y"])
     tex = nodes.new("ShaderNodeTexImage")
     tex.image = image
     tex.interpolation = "Linear"
@@ -94,8 +136,14 @@ def _material(image) -> bpy.types.Material:
     emit = nodes.new("ShaderNodeEmission")
     emit.inputs["Strength"].default_value = 1.0
     links.new(tex.outputs["Color"], emit.inputs["Color"])
+    # a camera outside the mesh sees its near side first: that side lets the ray through to the inside
+    see_through = nodes.new("ShaderNodeBsdfTransparent")
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(geometry.outputs["Backfacing"], mix.inputs["Fac"])
+    links.new(see_through.outputs["BSDF"], mix.inputs[1])
+    links.new(emit.outputs["Emission"], mix.inputs[2])
     out = nodes.new("ShaderNodeOutputMaterial")
-    links.new(emit.outputs["Emission"], out.inputs["Surface"])
+    links.new(mix.outputs["Shader"], out.inputs["Surface"])
     return mat
 
 
@@ -122,7 +170,7 @@ def import_background_sphere(result_dir, record: dict, collection, colour_mode: 
     image.colorspace_settings.name = _colourspace(colour_mode)
     mesh = bpy.data.meshes.new(OBJECT_NAME)
     bm = bmesh.new()
-    bmesh.ops.create_uvsphere(bm, u_segments=SEGMENTS[0], v_segments=SEGMENTS[1], radius=1.0)
+    bmesh.ops.create_uvsphere(bm, u_segments=SEGMENTS[0], v_segments=SEGMENTS[1], radius=MESH_RADIUS)
     bm.to_mesh(mesh)
     bm.free()
     mesh.materials.append(_material(image))
@@ -139,4 +187,4 @@ def import_background_sphere(result_dir, record: dict, collection, colour_mode: 
     return obj
 
 
-__all__ = ["OBJECT_NAME", "import_background_sphere", "record_of", "set_colour_mode"]
+__all__ = ["OBJECT_NAME", "fit_clip_end", "import_background_sphere", "record_of", "set_colour_mode"]

@@ -82,8 +82,10 @@ def import_result_background(scene, result_dir, splats_obj) -> None:
         return
     sphere = background_sphere.import_background_sphere(result_dir, record, _collection(scene, RESULT_COLLECTION),
                                                         scene.gsgs.colour_mode)
-    splats_obj["gsgs_report"] = list(splats_obj.get("gsgs_report", [])) + [
-        f"background: {sphere.name}, the wall learned behind the splats (radius {record['radius']:.3g})"]
+    lines = [f"background: {sphere.name}, the wall learned behind the splats (radius {record['radius']:.3g})"]
+    for cam in [o for o in scene.objects if o.type == "CAMERA"]:
+        lines += background_sphere.fit_clip_end(cam, sphere)
+    splats_obj["gsgs_report"] = list(splats_obj.get("gsgs_report", [])) + lines
 
 
 class GSGS_OT_import_result(bpy.types.Operator):

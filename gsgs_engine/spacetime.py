@@ -195,12 +195,14 @@ def gaussians_at(model: GaussianModel, t: float | None):
 
 
 def render_at(model: GaussianModel, camera, background: torch.Tensor, backend: str = "auto",
-              sh_degree: int | None = None, time: float | None = None):
-    """Render `model` from `camera` at `time` (default camera.time) through gsgs_engine.render.render()."""
+              sh_degree: int | None = None, time: float | None = None, near: float | None = None):
+    """Render `model` from `camera` at `time` (default camera.time) through gsgs_engine.render.render();
+    `near`: the near plane (None: the renderer's default; an inward shell's novel views use the run's)."""
     from gsgs_engine.render import render
 
     t = camera.time if time is None else time
     degree = model.active_sh_degree if sh_degree is None else sh_degree
     means, quats, scales, opac = gaussians_at(model, t)
+    extra = {} if near is None else {"near": float(near)}
     return render(means, quats, scales, opac, model.sh(degree), camera, sh_degree=degree,
-                  background=background, backend=backend)
+                  background=background, backend=backend, **extra)

@@ -118,23 +118,40 @@ def engine_render(ply: Path, data: str, split: str, count: int, out: Path, camer
     if is_4d and not scene.has_time:
         raise GsgsError(f"{ply}: a 4D result, but {data} has no time; pass the multi-view video it was trained on")
     bg = torch.tensor(background, dtype=torch.float32)
+    sphere = None
+    if recorded.get("background_sphere"):  # the run's learned wall: the engine's final render composites it
+        from gsgs_engine.train.background_sphere import BackgroundSphere
+
+        sphere = BackgroundSphere.from_record(recorded["background_sphere"], ply.parent, scene.world_scale)
     out.mkdir(parents=True, exist_ok=True)
     listed = []
+    # the run's near plane for novel views (an inward shell's; else the renderer's default): the engine's render
+    # culls splats nearer than it, and the Blender camera gets it as its clip start
+    from dataclasses import replace
+
+    from gsgs_engine.render.project import DEFAULT_NEAR
+
+    near = float(recorded.get("novel_view_near", DEFAULT_NEAR))
     for k in picks:
         view = views[k]
+        camera = replace(view.camera, near=near)  # the Blender camera's clip start = the engine's near plane
         t0 = time.perf_counter()
         with torch.no_grad():
-            rendered = (render_at(model, view.camera, bg, "auto", sh_degree=model.max_sh_degree) if is_4d
-                        else render_model(model, view.camera, bg, "auto"))
+            rendered = (render_at(model, camera, bg, "auto", sh_degree=model.max_sh_degree, near=near) if is_4d
+                        else render_model(model, camera, bg, "auto", near=near))
+            if sphere is not None:
+                rendered = sphere.composite(rendered, camera, bg)
             img = rendered.color.clamp(0.0, 1.0).cpu().numpy()
         seconds = time.perf_counter() - t0
         stem = f"view_{k:03d}"
         write_png(out / f"{stem}_engine.png", img)
         write_png(out / f"{stem}_gt.png", np.asarray(view.image(), dtype=np.float32))
-        listed.append({"index": k, "name": view.name, "stem": stem, "camera": view.camera.to_dict(),
+        listed.append({"index": k, "name": view.name, "stem": stem, "camera": camera.to_dict(),
                        "time": view.camera.time, "frame": timeline_frame(view, scene), "engine_seconds": seconds})
     info = {"background": background, "resolution_scale": scale, "sh_degree": model.max_sh_degree,
-            "num_gaussians": model.num_gaussians, "is_4d": is_4d, "views": listed}
+            "num_gaussians": model.num_gaussians, "is_4d": is_4d, "views": listed,
+            "background_sphere": recorded.get("background_sphere") if sphere is not None else None, "near": near,
+            "world_scale": scene.world_scale}
     if is_4d:
         frames = [timeline_frame(v, scene) for v in scene.views]
         info["frame_range"] = [min(frames), max(frames)]
@@ -242,6 +259,12 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
     scene.render.image_settings.color_mode = "RGB"
     scene.render.image_settings.color_depth = "8"
     set_world_background(scene, info["background"])
+    sphere = None
+    if info.get("background_sphere"):  # the add-on's Import Result brings the learned wall: so does this check
+        from gsgs_blender import background_sphere
+
+        record = dict(info["background_sphere"])
+        sphere = background_sphere.import_background_sphere(ply.parent, record, scene.collection, colour)
     cam_data = bpy.data.cameras.new("gsgs_fidelity_camera")
     cam_obj = bpy.data.objects.new("gsgs_fidelity_camera", cam_data)
     scene.collection.objects.link(cam_obj)
@@ -255,6 +278,8 @@ def blender_render(ply: Path, out: Path, size: float | None, bounces: int | None
     for v in info["views"]:
         cam = Camera.from_dict(v["camera"])
         apply_camera_to_object(cam, cam_obj, scene, set_scene_frame=True)
+        if sphere is not None:
+            background_sphere.fit_clip_end(cam_obj, sphere)  # as the add-on's import does for the scene's cameras
         if info.get("is_4d"):
             scene.frame_set(v["frame"])
             t = time.perf_counter()

@@ -76,7 +76,8 @@ def test_a_cycles_render_of_the_sphere_is_the_engines_background(tmp_path, empty
     assert tuple(obj.location) == pytest.approx(tuple(CENTRE)) and tuple(obj.scale) == pytest.approx((RADIUS,) * 3)
     assert not obj.visible_shadow and not obj.visible_diffuse  # camera rays only
     cams = [_camera(CENTRE, CENTRE + [1.0, 0.4, 0.2], name="inside"),  # from the centre
-            _camera(CENTRE + [-2.6, 0.5, 0.3], CENTRE + [1.0, -0.3, 0.0], name="near the shell")]  # across the dome
+            _camera(CENTRE + [-2.6, 0.5, 0.3], CENTRE + [1.0, -0.3, 0.0], name="near the shell"),  # across the dome
+            _camera(CENTRE + [-3.3, -0.4, 0.2], CENTRE + [0.5, 0.2, 0.1], name="outside it")]  # the far side, through
     for i, cam in enumerate(cams):
         got = _cycles(scene, cam, tmp_path / f"{mode}_{i}.png")
         want = engine.image(cam).detach().numpy()

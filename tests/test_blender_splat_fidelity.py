@@ -124,6 +124,18 @@ def _tiny_dataset(root: Path, cams: list[Camera]) -> None:
         (root / f"transforms_{split}.json").write_text(json.dumps(data))
 
 
+def _fidelity_of_two_views(tmp_path: Path, result: Path):
+    """scripts/bench_blender_fidelity.py on `result` against a tiny dataset of two 40 px views (real subprocess,
+    real Cycles): (the finished process, fidelity.json)."""
+    _tiny_dataset(tmp_path / "data", [_camera(40), _camera(40, eye=(-2.5, -2.0, 1.5))])
+    out = tmp_path / "fidelity"
+    done = subprocess.run([sys.executable, str(REPO / "scripts" / "bench_blender_fidelity.py"), str(result),
+                           str(tmp_path / "data"), "--views", "2", "--out", str(out), "--threads", "1"],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done, json.loads((out / "fidelity.json").read_text())
+
+
 def test_cycles_render_matches_the_engine(tmp_path):
     """scripts/bench_blender_fidelity.py end to end on 60 splats, 2 views of 40 px: Cycles with the
     add-on's settings against the engine's render (real subprocesses, real Cycles)."""
@@ -132,18 +144,41 @@ def test_cycles_render_matches_the_engine(tmp_path):
     write_gaussian_ply(result / "point_cloud.ply", _splats(60, seed=7))
     (result / "metrics.json").write_text(json.dumps({"plan": {"background": [1.0, 1.0, 1.0],
                                                               "resolution_scale": 1.0}}))
-    _tiny_dataset(tmp_path / "data", [_camera(40), _camera(40, eye=(-2.5, -2.0, 1.5))])
-    out = tmp_path / "fidelity"
-    done = subprocess.run([sys.executable, str(REPO / "scripts" / "bench_blender_fidelity.py"), str(result),
-                           str(tmp_path / "data"), "--views", "2", "--out", str(out), "--threads", "1"],
-                          capture_output=True, text=True, timeout=300, cwd=REPO)
-    assert done.returncode == 0, done.stderr[-3000:]
-    summary = json.loads((out / "fidelity.json").read_text())
+    done, summary = _fidelity_of_two_views(tmp_path, result)
     assert len(summary["per_view"]) == 2 and summary["width"] == 40
     print(f"\nBlender vs engine: {summary['blender_vs_engine']}")
     assert summary["blender_vs_engine"]["psnr"] > 40.0, summary["blender_vs_engine"]  # measured 55.8 dB
     assert summary["blender_vs_engine"]["ssim"] > 0.99, summary["blender_vs_engine"]
     assert "Blender vs engine" in done.stdout
+
+
+def test_cycles_render_with_the_background_sphere_matches_the_engine(tmp_path):
+    """The same check on a result with a learned background sphere (an inward shell's wall): splats inside the
+    shell, and splats beyond it (a wall's splats lie at and behind the shell), all composited in front of the
+    sphere's texture, as the engine does; both cameras sit outside the sphere."""
+    from gsgs_engine.train.background_sphere import BackgroundSphere
+
+    result = tmp_path / "result"
+    result.mkdir()
+    splats = _splats(60, seed=7)
+    far = _splats(20, seed=8)  # a shell of splats at 2.3-2.6 units: beyond the sphere's radius 2.0
+    direction = far.positions / np.linalg.norm(far.positions, axis=1, keepdims=True)
+    far.positions = direction * np.random.default_rng(9).uniform(2.3, 2.6, size=(20, 1))
+    both = GaussianPly(**{k: np.concatenate([getattr(splats, k), getattr(far, k)])
+                          for k in ("positions", "opacity_logits", "log_scales", "quats_wxyz", "sh_dc", "sh_rest")})
+    write_gaussian_ply(result / "point_cloud.ply", both)
+    g = torch.Generator().manual_seed(1)
+    logits = torch.nn.functional.interpolate(torch.randn(3, 4, 8, generator=g)[None], size=(16, 32),
+                                             mode="bilinear", align_corners=False)[0]
+    sphere = BackgroundSphere(np.zeros(3), 2.0, logits)
+    sphere.write_texture(result / "background_sphere.png")
+    (result / "metrics.json").write_text(json.dumps({"plan": {"background": [0.5, 0.5, 0.5], "resolution_scale": 1.0,
+                                                              "background_sphere": sphere.describe()}}))
+    _, summary = _fidelity_of_two_views(tmp_path, result)
+    print(f"\nBlender vs engine with the sphere: {summary['blender_vs_engine']}")
+    assert summary["blender_vs_engine"]["psnr"] > 40.0, summary["blender_vs_engine"]  # measured 53.9 dB
+    views = json.loads((tmp_path / "fidelity" / "views.json").read_text())
+    assert views["background_sphere"]["radius"] == pytest.approx(2.0)
 
 
 def test_training_estimate_reproduces_its_reference_runs():
