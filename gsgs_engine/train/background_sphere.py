@@ -21,6 +21,7 @@ Measured on the Panoptic capture: docs/dynamic_panoptic.md, "Session 35".
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -30,7 +31,7 @@ from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera, focus_point
 
 LEARNING_RATE = 0.05  # Adam, on the texture's logits (not screened: the first value tried)
-DEFAULT_WIDTH = 256  # texels around the equator (the height is half: 0.7 degrees a texel)
+DEFAULT_WIDTH = 256  # texels around the equator (the height is half: 1.4 degrees a texel either way)
 TEXTURE_FILE = "background_sphere.png"
 
 
@@ -148,7 +149,6 @@ class BackgroundSphere:
     def from_record(cls, record: dict, folder, world_scale: float = 1.0, device="cpu") -> "BackgroundSphere":
         """The sphere `describe` recorded, its texture read from `folder` (for `gsgs eval`)."""
         import cv2
-        from pathlib import Path
 
         path = Path(folder) / record.get("file", TEXTURE_FILE)
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)

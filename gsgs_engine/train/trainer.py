@@ -403,9 +403,11 @@ class Trainer:
         out = render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                      sh_degree=inputs["sh_degree"], background=bg,
                      backend=self.config.backend, near=self.config.novel_view_near, sh_rest=inputs.get("sh_rest"))
-        if self.bg_sphere is not None:
-            out = self.bg_sphere.composite(out, camera, bg)
-        return out
+        return self._behind(out, camera, bg)
+
+    def _behind(self, out, camera: Camera, background: torch.Tensor):
+        """A render with the run's background sphere behind it (as rendered: over the constant `background`)."""
+        return out if self.bg_sphere is None else self.bg_sphere.composite(out, camera, background)
 
     def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None,
                             absgrad: bool | None = None):
@@ -424,9 +426,7 @@ class Trainer:
                      sh_degree=inputs["sh_degree"], background=bg,
                      backend=self.config.backend, absgrad=self._step_absgrad if absgrad is None else absgrad,
                      sh_rest=inputs.get("sh_rest"))
-        if self.bg_sphere is not None:
-            out = self.bg_sphere.composite(out, camera, bg)
-        return out
+        return self._behind(out, camera, bg)
 
     # -- the loop -------------------------------------------------------------------------------
     def _next_view(self) -> int:
