@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 import bpy
@@ -69,7 +71,40 @@ def import_job_result(scene, job_dir: str | Path):
     obj = import_ply(scene, ply)
     obj["gsgs_job"] = str(job.root)
     import_result_background(scene, job.result_dir, obj)
+    fit_result_near(scene, job.result_dir, obj)
     return obj
+
+
+def result_near(result_dir) -> float | None:
+    """The near plane a result's novel views were drawn with, in world units (metrics.json's plan.novel_view_near
+    x plan.world_scale), where its effect plan read an inward shell; None otherwise (other rigs draw with the
+    renderer's default) or without a readable record."""
+    try:
+        plan = json.loads((Path(result_dir) / "metrics.json").read_text()).get("plan", {})
+        if plan["effects"]["rig"]["value"] != "inward shell":
+            return None
+        near, scale = float(plan["novel_view_near"]), float(plan.get("world_scale", 1.0))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if not (math.isfinite(near) and math.isfinite(scale)) or near <= 0 or scale <= 0:
+        return None
+    return near * scale
+
+
+def fit_result_near(scene, result_dir, splats_obj) -> None:
+    """An inward shell's result (cameras on the walls they film): the scene's cameras get at least the run's near
+    plane as their clip start, so a camera on the shell does not draw the wall's splats around its lens (the
+    engine drew its test views so, docs/inward_rigs.md); a line for the import's report per camera changed."""
+    near = result_near(result_dir)
+    if near is None:
+        return
+    lines = []
+    for cam in [o for o in scene.objects if o.type == "CAMERA"]:
+        if cam.data.clip_start < near:
+            old, cam.data.clip_start = cam.data.clip_start, near
+            lines.append(f"{cam.name} clip start: {old:.4g} -> {near:.4g} (the run's near plane for novel views: "
+                         "the wall's splats around a camera on the shell stay out of its image)")
+    splats_obj["gsgs_report"] = list(splats_obj.get("gsgs_report", [])) + lines
 
 
 def import_result_background(scene, result_dir, splats_obj) -> None:

@@ -176,6 +176,29 @@ def position_lr_effect(train_config, effects: dict, requested: str, sparse: bool
                   f"rate x{POSITION_LR_SCALE:g}; " + POSITION_LR_MEASURED)
 
 
+def viewpoints(cameras) -> list:
+    """One camera per distinct viewpoint (centre and viewing direction), first seen first: a multi-view video's
+    training views are its cameras at every frame, but what a Gaussian's colour and the rig's coverage can learn
+    from are the viewpoints. Static views come back as they are (no two share a pose)."""
+    if len(cameras) < 2:
+        return list(cameras)
+    centres = np.stack([np.asarray(c.center, np.float64) for c in cameras])
+    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
+    tol = max(spread, 1e-12) * 1e-6
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    out = []
+    for cam, centre in zip(cameras, centres):
+        rot = np.asarray(cam.R, np.float64)
+        if not any(np.linalg.norm(centre - c) <= tol and np.abs(rot - r).max() <= 1e-6 for c, r in seen):
+            seen.append((centre, rot))
+            out.append(cam)
+    return out
+
+
+def _viewpoint_count(views: int, distinct: int) -> str:
+    return f"{views} views" if views == distinct else f"{distinct} viewpoints ({views} views)"
+
+
 def cameras_per_frame(views) -> int:
     """How many training cameras film a moment of a video: the most views that share one time."""
     counts: dict = {}
@@ -243,6 +266,15 @@ BACKGROUNDS = ("auto", "transparent", "opaque", "mean", "sphere", "fixed", "rand
 # Panoptic): panoptic_basketball 9 cameras 51% of 210 points, 6 cameras 63% of 71 (3 cameras triangulate no
 # point: an orbit, as before); lego_200 8 views 0.6% of 170, blender_lego 8 views 0% of 329, blender_chair
 # 8 views 0.2% of 640 (their points lie within 0.32 x the radius); LLFF is forward-facing (axes do not meet).
+# Where too few points triangulate to measure (cameras far apart: 3 of Panoptic's, 120 degrees apart, give none),
+# RGB photos of a converging rig count as a shell: they film their surroundings (a room, a dome, a studio),
+# which lie at or beyond the cameras, while an object orbit on nothing comes as RGBA (NeRF-synthetic) and stays
+# an orbit. The dense sweep cannot tell either: its consistent points on the dome with 3 / 6 / 9 cameras lie
+# within 0.6 x the radius (the floor between the cameras; the walls do not match across 120 degrees), like
+# lego's and chair's (0.3). Measured (docs/inward_rigs.md, session 36): Panoptic frame 0, 3 cameras,
+# `--prior auto` read as an orbit 14.43 dB (below plain 3DGS's 15.38), as a shell 18.13.
+SHELL_UNMEASURED_MEASURED = ("Panoptic frame 0, 3 cameras (no point triangulates), --prior auto, seed 0: read as an "
+                             "orbit 14.43 dB, as a shell 18.13 (plain 3DGS 15.38)")
 SHELL_REACH = 0.8
 SHELL_MIN_SHARE = 0.2
 # An inward shell's near plane: NEAR_FRACTION x the shell radius (the cameras' median distance from the
@@ -351,13 +383,14 @@ def coverage(cameras, near: float | None = None, far: float | None = None) -> di
             "nn_gap_max_deg": round(float(nn.max()), 2), "focus": how}
 
 
-def rig_layout(cameras, points=None, near: float | None = None, far: float | None = None) -> dict:
+def rig_layout(cameras, points=None, near: float | None = None, far: float | None = None, rgb: bool = False) -> dict:
     """What rig the cameras form: forward-facing, object orbit or inward shell (see SHELL_REACH), measured.
 
     `points` (N x 3, e.g. the training views' SfM points) tell an orbit from a shell: on a shell a
     share of them lies out at the cameras' distance from the focus. Without enough points a
-    converging rig counts as an orbit (what it was before shells were told apart). "near" is
-    the near plane a shell's renders need (None: the renderer's default).
+    converging rig of `rgb` photos (no alpha) counts as a shell, of RGBA ones as an orbit
+    ("points_at_shell" then absent, "unmeasured" set). "near" is the near plane a shell's renders
+    need (None: the renderer's default).
     """
     if len(cameras) < 2:
         return {"rig": "object orbit", "focus": "one view", "near": None}
@@ -372,6 +405,9 @@ def rig_layout(cameras, points=None, near: float | None = None, far: float | Non
     pts = pts[np.isfinite(pts).all(axis=1)]
     out["points"] = int(len(pts))
     if len(pts) < MIN_MEASURED_POINTS:
+        out["unmeasured"] = True
+        if rgb:
+            out.update(rig="inward shell", near=round(NEAR_FRACTION * radius, 6))
         return out
     share = float(np.mean(np.linalg.norm(pts - focus, axis=1) >= SHELL_REACH * radius))
     out["points_at_shell"] = round(share, 4)
@@ -393,7 +429,13 @@ def rig_effect(layout: dict, choice: str) -> Effect:
         return Effect("rig", False, layout["rig"], "--effects rig=orbit: the renderer's default near plane", "user",
                       {**layout, "near": None})
     rig = layout["rig"]
-    if rig == "inward shell":
+    if rig == "inward shell" and layout.get("unmeasured"):
+        why = (f"the optical axes meet; {layout.get('points', 0)} SfM points (< {MIN_MEASURED_POINTS}) cannot measure "
+               "where the scene lies, and RGB photos of a converging rig film their surroundings (a room, a dome), "
+               f"so an inward shell: novel views drawn with a near plane of {layout['near']:g} ({NEAR_FRACTION} x "
+               f"the radius {layout['shell_radius']:.3g}); {SHELL_UNMEASURED_MEASURED}; --effects rig=orbit for an "
+               "object on a plain backdrop")
+    elif rig == "inward shell":
         why = (f"{layout['points_at_shell']:.0%} of {layout['points']} SfM points lie out at the cameras' shell "
                f"(>= {SHELL_REACH} x radius {layout['shell_radius']:.3g} from the focus; >= {SHELL_MIN_SHARE:.0%} "
                f"makes a shell): the walls the cameras hang on; novel views (evaluation, pseudo views) drawn with a "
@@ -406,7 +448,7 @@ def rig_effect(layout: dict, choice: str) -> Effect:
                f"at the cameras' shell (< {SHELL_MIN_SHARE:.0%}): the scene sits inside the rig")
     else:
         why = (f"the optical axes meet; {layout.get('points', 0)} SfM points (< {MIN_MEASURED_POINTS}) cannot tell a "
-               "shell from an orbit, so an orbit")
+               "shell from an orbit, and RGBA views film an object on nothing: an orbit")
     return Effect("rig", rig == "inward shell", rig, why, measured=layout)
 
 
@@ -584,15 +626,18 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
 
     # the rig: forward-facing, object orbit or inward shell (whose renders need a near plane)
     rig_points = triangulation.points if triangulation is not None else scene.points
-    effects["rig"] = rig_effect(rig_layout(cams, rig_points, scene.near, scene.far), rig_choice)
+    effects["rig"] = rig_effect(rig_layout(cams, rig_points, scene.near, scene.far, rgb=not scene.has_alpha),
+                                rig_choice)
 
-    # view-dependent colour
-    cap = identifiable_sh_degree(len(views))
+    # view-dependent colour: as many observations of a colour as distinct viewpoints (a video's camera at every
+    # frame is one viewpoint)
+    distinct = len(viewpoints(cams))
+    cap = identifiable_sh_degree(distinct)
     if not sh_auto:
         d = int(overrides["sh_degree"])
         effects["sh_degree"] = Effect("sh_degree", d > 0, d, "--effects sh_degree", "user")
     else:
-        measured: dict = {"identifiable_degree": cap, "num_train_views": len(views)}
+        measured: dict = {"identifiable_degree": cap, "num_train_views": len(views), "viewpoints": distinct}
         tracks = getattr(triangulation, "tracks", None) or []
         if len([t for t in tracks if len(t) >= 2]) >= MIN_MEASURED_POINTS:
             images = [v.image() for v in views]
@@ -616,11 +661,11 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
                         + f" ({AUTO_ORBIT_SH_MEASURED})")
             d = min(wanted, limit)
             if d < wanted:
-                why += f"; capped at degree {limit} ({len(views)} views)"
+                why += f"; capped at degree {limit} ({_viewpoint_count(len(views), distinct)})"
         else:
             d = cap
             why = (f"view dependence not measurable ({measured.get('points', 0)} points seen twice); degree "
-                   f"{cap}, the most {len(views)} views identify")
+                   f"{cap}, the most {_viewpoint_count(len(views), distinct)} identify")
         effects["sh_degree"] = Effect("sh_degree", d > 0, d, why, measured=measured)
 
     # background: RGBA views -> a random background each step so alpha is learned, not painted; an inward shell's
@@ -686,8 +731,8 @@ def plan_effects(scene, train_config, prior_config=None, overrides: dict | None 
         effects["depth"] = Effect("depth", False, None, f"no depth source: {num_points or 0} SfM points "
                                   f"(< {MIN_DEPTH_POINTS}) and no depth model", measured={"sfm_points": num_points})
 
-    # pseudo views: only when the views are sparse for the scene's coverage
-    cov = coverage(cams, scene.near, scene.far)
+    # pseudo views: only when the views are sparse for the scene's coverage (by viewpoint: a video's cameras once)
+    cov = coverage(viewpoints(cams), scene.near, scene.far)
     gap = cov["nn_gap_median_deg"]
     sparse = cov["views"] < DENSE_MIN_VIEWS or (gap is not None and gap > DENSE_MAX_GAP_DEG)
     sparse_why = (f"{cov['views']} views (< {DENSE_MIN_VIEWS})" if cov["views"] < DENSE_MIN_VIEWS else

@@ -322,7 +322,8 @@ def summarise(out: Path, blender: dict) -> dict:
     summary.update({"views": [v["name"] for v in info["views"]], "width": first["width"], "height": first["height"],
                     "num_gaussians": info["num_gaussians"], "sh_degree": info["sh_degree"],
                     "background": info["background"], "per_view": pairs, "blender": blender,
-                    "is_4d": bool(info.get("is_4d"))})
+                    "is_4d": bool(info.get("is_4d")), "background_sphere": info.get("background_sphere"),
+                    "near": info.get("near")})
     if info.get("is_4d"):
         summary["frames"] = [v["frame"] for v in info["views"]]
         summary["timeline_update_seconds_per_frame"] = (sum(blender["timeline_update_seconds"])
@@ -347,6 +348,9 @@ def table(summary: dict) -> str:
                  f"{summary['seconds_per_view']:.2f} s per view (engine {summary['engine_seconds_per_view']:.2f} s); "
                  f"import {b['import_seconds']:.2f} s; "
                  f"gap to the engine vs ground truth {summary['gt_gap_db']:+.2f} dB")
+    if summary.get("background_sphere"):
+        lines.append(f"background: the result's learned sphere (radius {summary['background_sphere']['radius']:.3g}), "
+                     f"imported as the add-on's Import Result does; near plane {summary['near']:g}")
     if summary.get("is_4d"):
         lines.append(f"4D: frames {', '.join(map(str, summary['frames']))} played on the timeline; "
                      f"{summary['timeline_update_seconds_per_frame']:.3f} s a frame to update the splats")

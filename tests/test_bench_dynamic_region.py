@@ -134,10 +134,11 @@ def test_the_bench_reads_the_panoptic_dome_as_a_shell_and_draws_test_views_with_
     layout = bench_rig(scene, log=lambda m: None)
     assert layout["rig"] == "inward shell" and layout["points_at_shell"] >= 0.2
     assert 0.1 < layout["near"] < 1.0  # 0.1 x the dome's radius (about 2.7 units)
-    three = load_bench_scene(PANOPTIC, 3, 1, 0.5)  # too far apart to triangulate: reads as an orbit ...
-    assert bench_rig(three, log=lambda m: None)["near"] is None
-    told = bench_rig(three, "inward", log=lambda m: None)  # ... unless the user says what it is
-    assert told["rig"] == "inward shell" and 0.1 < told["near"] < 1.0
+    three = load_bench_scene(PANOPTIC, 3, 1, 0.5)  # too far apart to triangulate: RGB photos read as a shell ...
+    guessed = bench_rig(three, log=lambda m: None)
+    assert guessed["rig"] == "inward shell" and guessed["unmeasured"] and 0.1 < guessed["near"] < 1.0
+    told = bench_rig(three, "orbit", log=lambda m: None)  # ... unless the user says otherwise
+    assert told["near"] is None
 
 
 def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path):

@@ -115,6 +115,35 @@ def test_the_colour_mode_follows_the_scene_and_a_job_import_brings_the_sphere(tm
         gsgs_blender.unregister()
 
 
+def test_an_inward_shell_result_gives_the_scenes_cameras_its_near_plane(tmp_path, empty_scene):
+    from gsgs_blender import ops_result
+
+    scene = empty_scene
+    cams = []
+    for name, start in (("close", 0.05), ("far enough", 2.0)):
+        cam = bpy.data.objects.new(name, bpy.data.cameras.new(name))
+        cam.data.clip_start = start
+        scene.collection.objects.link(cam)
+        cams.append(cam)
+    splats = bpy.data.objects.new("splats", None)
+    scene.collection.objects.link(splats)
+
+    def write(rig, near=0.26, scale=2.0):
+        (tmp_path / "metrics.json").write_text(json.dumps({"plan": {
+            "novel_view_near": near, "world_scale": scale, "effects": {"rig": {"value": rig}}}}))
+
+    write("object orbit")  # other rigs draw with the renderer's default: nothing changes
+    ops_result.fit_result_near(scene, tmp_path, splats)
+    assert cams[0].data.clip_start == pytest.approx(0.05) and not splats.get("gsgs_report")
+    write("inward shell", near=float("nan"))  # a broken record changes nothing either
+    assert ops_result.result_near(tmp_path) is None
+    write("inward shell")  # the near plane in world units (trainer units x world_scale), only raised
+    ops_result.fit_result_near(scene, tmp_path, splats)
+    assert cams[0].data.clip_start == pytest.approx(0.52) and cams[1].data.clip_start == pytest.approx(2.0)
+    assert len(splats["gsgs_report"]) == 1 and "close clip start" in splats["gsgs_report"][0]
+    assert ops_result.result_near(tmp_path / "nowhere") is None
+
+
 def test_a_missing_texture_or_a_broken_record_is_refused_naming_the_file(tmp_path, empty_scene):
     from gsgs_engine import GsgsError
 

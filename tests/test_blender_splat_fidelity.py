@@ -179,6 +179,7 @@ def test_cycles_render_with_the_background_sphere_matches_the_engine(tmp_path):
     assert summary["blender_vs_engine"]["psnr"] > 40.0, summary["blender_vs_engine"]  # measured 53.9 dB
     views = json.loads((tmp_path / "fidelity" / "views.json").read_text())
     assert views["background_sphere"]["radius"] == pytest.approx(2.0)
+    assert summary["background_sphere"]["radius"] == pytest.approx(2.0)  # the summary says the sphere was in it
 
 
 def test_training_estimate_reproduces_its_reference_runs():

@@ -92,6 +92,35 @@ def plan(scene, prior=AUTO, overrides=None, tri=None, **cfg):
 
 
 # -- decisions --------------------------------------------------------------------------------------------
+def video_scene(n_cameras: int, n_frames: int, rgba: bool = True) -> Scene:
+    """n_cameras that do not move, each filming n_frames times (a synchronised rig's training views)."""
+    cams, images, pts = _renders(n_cameras, 360.0, 1)
+    views = []
+    for f in range(n_frames):
+        for cam, img in zip(cams[:n_cameras], images):
+            views.append(View(camera=replace(cam, time=f / max(n_frames - 1, 1)), image_path=None,
+                              loader=lambda img=img if rgba else img[..., :3]: img))
+    test = View(camera=replace(cams[-1], time=0.0), image_path=None, loader=lambda: images[-1])
+    return Scene(views=views + [test], splits={"train": list(range(len(views))), "test": [len(views)]},
+                 source="synthetic", format="test", points=pts.copy(),
+                 point_colors=np.full((len(pts), 3), 0.5, np.float32), has_alpha=rgba)
+
+
+def test_a_videos_cameras_count_once_as_viewpoints():
+    from gsgs_engine.effect_plan import viewpoints
+
+    scene = video_scene(3, 10)
+    cams = [scene.views[i].camera for i in scene.splits["train"]]
+    assert len(cams) == 30 and [c.name for c in viewpoints(cams)] == [c.name for c in cams[:3]]
+    moved = replace(cams[0], t=np.asarray(cams[0].t) + 0.1)  # a camera that moved is another viewpoint
+    assert len(viewpoints(cams + [moved])) == 4
+    p = plan_effects(scene, TrainConfig(init="points"), AUTO, {}, log=lambda m: None)
+    # 3 viewpoints identify degree 0 (30 views would say 3), and the rig is as sparse as its 3 cameras
+    assert p["sh_degree"].measured["identifiable_degree"] == 0 and p["sh_degree"].measured["viewpoints"] == 3
+    assert p["pseudo_views"].measured["views"] == 3 and "3 views (< " in p["pseudo_views"].reason
+    assert p["time"].enabled
+
+
 def test_static_vs_dynamic():
     static = plan(make_scene())
     assert static["time"].enabled is False and static["time"].value == "static"
@@ -242,11 +271,12 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     # a long schedule (the best preset's 3000 steps): the shifted view at every step again, recorded as such
     from gsgs_engine.effect_plan import AUTO_LONG_STEPS, AUTO_ORBIT_LONG_TECHNIQUES
 
-    long_run = plan_effects(make_scene(n_train=4), TrainConfig(iters=AUTO_LONG_STEPS), AUTO, SH1,
+    # (the views triangulate: these 16 px RGB ones give no point, which reads a shell, so the orbit is RGBA here)
+    long_run = plan_effects(make_scene(n_train=4, rgba=True), TrainConfig(iters=AUTO_LONG_STEPS), AUTO, SH1,
                             log=lambda m: None)
     assert long_run["techniques"].value == list(AUTO_ORBIT_LONG_TECHNIQUES) and "binocular" in AUTO_ORBIT_LONG_TECHNIQUES
     assert "every step" in long_run["techniques"].reason
-    assert plan_effects(make_scene(n_train=4), TrainConfig(iters=AUTO_LONG_STEPS - 1), AUTO, SH1,
+    assert plan_effects(make_scene(n_train=4, rgba=True), TrainConfig(iters=AUTO_LONG_STEPS - 1), AUTO, SH1,
                         log=lambda m: None)["techniques"].value == list(AUTO_ORBIT_TECHNIQUES)
     shell = plan(make_scene(n_train=4), overrides={"rig": "inward"})  # a shell: the base recipe (not measured there)
     assert shell["techniques"].value == list(AUTO_TECHNIQUES)

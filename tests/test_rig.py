@@ -86,11 +86,29 @@ def test_forward_facing_and_unmeasurable_rigs_keep_the_default_near_plane():
     assert rig_layout(shell_cameras(), with_nan)["points"] == len(shell_points())
 
 
-def _scene(cams, points) -> Scene:
-    img = np.full((SIZE, SIZE, 3), 0.5, np.float32)
+def test_rgb_photos_of_a_converging_rig_with_too_few_points_count_as_a_shell():
+    # 3 of Panoptic's cameras (120 degrees apart) triangulate no point: RGB photos film their surroundings, so a
+    # shell with its near plane; RGBA views (an object on nothing) stay an orbit; a forward rig stays forward
+    few = rig_layout(shell_cameras(3), shell_points()[-10:], rgb=True)
+    assert few["rig"] == "inward shell" and few["unmeasured"] and "points_at_shell" not in few
+    assert few["near"] == pytest.approx(NEAR_FRACTION * few["shell_radius"])
+    assert rig_layout(shell_cameras(3), None, rgb=False)["rig"] == "object orbit"
+    assert rig_layout(forward_cameras(), None, rgb=True)["rig"] == "forward-facing"
+    # measured points still decide: an RGB orbit whose points lie inside it stays an orbit
+    assert rig_layout(shell_cameras(), orbit_points(), rgb=True)["rig"] == "object orbit"
+    shell = _plan(_scene(shell_cameras(3), shell_points()[-10:]))
+    assert shell["rig"].value == "inward shell" and "cannot measure" in shell["rig"].reason
+    assert "rig=orbit" in shell["rig"].reason and shell["background"].value == "sphere"
+    rgba = _plan(_scene(shell_cameras(3), shell_points()[-10:], alpha=True))
+    assert rgba["rig"].value == "object orbit" and "RGBA" in rgba["rig"].reason
+
+
+def _scene(cams, points, alpha: bool = False) -> Scene:
+    img = np.full((SIZE, SIZE, 4 if alpha else 3), 0.5, np.float32)
     views = [View(camera=c, image_path=None, loader=lambda: img) for c in cams]
     return Scene(views=views, splits={"train": list(range(len(cams))), "test": []}, source="synthetic", format="test",
-                 points=np.asarray(points, np.float32), point_colors=np.full((len(points), 3), 0.5, np.float32))
+                 points=np.asarray(points, np.float32), point_colors=np.full((len(points), 3), 0.5, np.float32),
+                 has_alpha=alpha)
 
 
 def _plan(scene, overrides=None, prior="auto"):

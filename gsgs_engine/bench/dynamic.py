@@ -165,7 +165,8 @@ def bench_rig(scene, choice: str = "auto", log=print) -> dict:
 
     first = next(iter(views_by_frame(scene.train).values()))
     points = triangulate_with_known_poses(first).points if len(first) >= 2 else None
-    layout = rig_effect(rig_layout([v.camera for v in first], points, scene.near, scene.far), choice).measured
+    layout = rig_effect(rig_layout([v.camera for v in first], points, scene.near, scene.far,
+                                   rgb=not scene.has_alpha), choice).measured
     log(f"[bench dynamic] rig: {layout['rig']} ({layout.get('points', 0)} points of the first frame"
         + (f"; novel views drawn with a near plane of {layout['near']:.3g}" if layout.get("near") else "") + ")")
     return layout
