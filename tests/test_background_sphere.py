@@ -96,18 +96,18 @@ def test_training_learns_the_texture_and_resumes_it_bit_identically(tmp_path):
 
     # the photos show white behind the object; the run's background starts grey: the open pixels teach the wall
     scene = replace(make_scene(), background=np.full(3, 0.5, np.float32))
-    a = make_trainer(scene, tmp_path=tmp_path / "a", iters=16, checkpoint_every=8, seed=3, background_sphere=32)
+    a = make_trainer(scene, tmp_path=tmp_path / "a", iters=40, checkpoint_every=8, seed=3, background_sphere=32)
     a.setup()
     assert a.bg_sphere is not None and a.bg_sphere.size == (32, 16)
     assert torch.allclose(a.bg_sphere.texture(), torch.tensor(0.5))
     a.train()
     assert torch.isfinite(a.bg_sphere.logits).all()
     assert float(a.bg_sphere.texture().detach().max()) > 0.55  # towards the photos' white
-    b = make_trainer(scene, tmp_path=tmp_path / "b", iters=16, checkpoint_every=8, seed=3, background_sphere=32)
+    b = make_trainer(scene, tmp_path=tmp_path / "b", iters=40, checkpoint_every=8, seed=3, background_sphere=32)
     b.setup()
     b.train(until=8)
     b.save_checkpoint()
-    c = make_trainer(scene, tmp_path=tmp_path / "b", iters=16, checkpoint_every=8, seed=3, background_sphere=32)
+    c = make_trainer(scene, tmp_path=tmp_path / "b", iters=40, checkpoint_every=8, seed=3, background_sphere=32)
     c.setup(resume=True)
     assert torch.equal(c.bg_sphere.logits.detach(), b.bg_sphere.logits.detach())
     c.train()
