@@ -139,6 +139,10 @@ def test_the_bench_reads_the_panoptic_dome_as_a_shell_and_draws_test_views_with_
     assert guessed["rig"] == "inward shell" and guessed["unmeasured"] and 0.1 < guessed["near"] < 1.0
     told = bench_rig(three, "orbit", log=lambda m: None)  # ... unless the user says otherwise
     assert told["near"] is None
+    # another time window of the same capture (--first-frame): frames 10-11, times normalised over them
+    later = load_bench_scene(PANOPTIC, 3, 2, 0.5, first_frame=10)
+    assert sorted({v.name.split("/")[1] for v in later.train}) == ["000010", "000011"]
+    assert sorted({v.camera.time for v in later.train}) == [0.0, 1.0]
 
 
 def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path):
@@ -155,6 +159,10 @@ def test_the_bench_can_screen_one_model_and_refuses_unknown_ones(pano, tmp_path)
     assert results["background"] == results["setup"]["background"] == "opaque"
     with pytest.raises(GsgsError, match="--models"):
         run(Namespace(**{**vars(args), "models": "4d,nope"}))
+    with pytest.raises(GsgsError, match="frame 3 does not exist"):  # a window past the capture's 3 frames
+        run(Namespace(**{**vars(args), "first_frame": 3}))
+    with pytest.raises(GsgsError, match="--first-frame"):
+        run(Namespace(**{**vars(args), "first_frame": -1}))
     for bad in (0.0, float("nan"), 1000.0):
         with pytest.raises(GsgsError, match="--position-lr-scale"):
             run(Namespace(**{**vars(args), "position_lr_scale": bad}))

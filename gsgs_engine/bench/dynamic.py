@@ -38,7 +38,10 @@ def add_arguments(parser) -> None:
                                                       "rendered when missing)")
     parser.add_argument("--ring", type=int, default=10, help="cameras in the rendered ring (camera 0 is held out)")
     parser.add_argument("--frames", type=int, default=10,
-                        help="frames rendered / used (a Panoptic capture: its first N frames)")
+                        help="frames rendered / used (a Panoptic capture: N frames from --first-frame)")
+    parser.add_argument("--first-frame", type=int, default=0,
+                        help="a Panoptic capture's first frame id used (default 0): another time window of the "
+                             "same capture, e.g. 10 with --frames 10 for frames 10-19")
     parser.add_argument("--resolution-scale", type=float, default=1.0, help="image scale of --data's views")
     parser.add_argument("--no-lpips", action="store_true",
                         help="skip LPIPS (about 7 s a 640x360 view on a 2-core CPU): for screening runs")
@@ -342,17 +345,22 @@ def parse_camera_counts(text) -> list[int]:
     return counts
 
 
-def load_bench_scene(data: Path, cameras: int, frames: int, resolution_scale: float = 1.0):
-    """The scene of one camera count: a Panoptic capture through its loader (first `frames` frames),
-    anything else through io.dynamic (camera 0 held out, `frames` frames evenly)."""
+def load_bench_scene(data: Path, cameras: int, frames: int, resolution_scale: float = 1.0, first_frame: int = 0):
+    """The scene of one camera count: a Panoptic capture through its loader (`frames` frames from frame id
+    `first_frame`), anything else through io.dynamic (camera 0 held out, `frames` frames evenly)."""
     from gsgs_engine.io.dynamic import load_dynamic_scene
     from gsgs_engine.io.loader import detect_format
 
     if detect_format(data) == "panoptic":
         from gsgs_engine.io import load_scene
 
-        return load_scene(data, format="panoptic", train_views=cameras, frames=f"0-{frames - 1}",
+        return load_scene(data, format="panoptic", train_views=cameras,
+                          frames=f"{first_frame}-{first_frame + frames - 1}",
                           resolution_scale=resolution_scale)
+    if first_frame:
+        from gsgs_engine import GsgsError
+
+        raise GsgsError(f"--first-frame {first_frame}: only a Panoptic capture takes a time window ({data} is not one)")
     return load_dynamic_scene(data, train_cameras=cameras, max_frames=frames, resolution_scale=resolution_scale)
 
 
@@ -375,6 +383,9 @@ def run(args) -> int:
         raise GsgsError("--iters and --per-frame-iters must be at least 1")
     if args.frames < 1:
         raise GsgsError(f"--frames must be at least 1 (got {args.frames})")
+    first_frame = int(getattr(args, "first_frame", 0) or 0)
+    if first_frame < 0:
+        raise GsgsError(f"--first-frame must be a frame id, 0 or more (got {first_frame})")
     from gsgs_engine.train.trainer import TrainConfig, validate_config
 
     validate_config(TrainConfig(position_lr_scale=args.position_lr_scale))  # the trainer's own rule for the rate
@@ -394,7 +405,7 @@ def run(args) -> int:
     log = lambda msg: print(msg, flush=True)  # noqa: E731
     every: dict = {}
     for n in counts:
-        scene = load_bench_scene(data, n, args.frames, args.resolution_scale)
+        scene = load_bench_scene(data, n, args.frames, args.resolution_scale, first_frame)
         train_cams = sorted({v.camera.extra["camera_index"] for v in scene.train})
         test_cams = sorted({v.camera.extra["camera_index"] for v in scene.test})
         print(f"[bench dynamic] {n} cameras: {len(scene.train)} training views (cameras {train_cams}), "
@@ -407,6 +418,7 @@ def run(args) -> int:
         first = scene.test[0].camera
         results["setup"] = {"data": str(data), "format": scene.format, "train_cameras": train_cams,
                             "test_cameras": test_cams, "frames": len({v.camera.time for v in scene.test}),
+                            "first_frame": first_frame,
                             "resolution": [first.width, first.height], "iters": args.iters,
                             "per_frame_iters": args.per_frame_iters, "init": args.init,
                             "init_points": args.init_points, "sh_degree": args.sh_degree, "backend": args.backend,
