@@ -25,7 +25,8 @@ def stats(xs, sign=""):
     return f"{mean} ± {xs.std(ddof=1):.2f}" if len(xs) > 1 else mean
 
 
-for label, tag, base in (("the background sphere (session 35)", "sph", HERE), ("the mean colour (session 34)", "full", S34)):
+def print_table(label, tag, base, pf100_name):
+    """One set of results (`tag`_cC_sS.json in `base`, the 100-step per-frame runs in pf100_name(cams, seed))."""
     print(f"\n{label}:\n")
     print("| cameras, seed | 4D PSNR / region | static, all frames | static per frame, 300 steps | static per frame, "
           "100 steps | 4D lead (region) | 4D Gaussians |")
@@ -36,7 +37,7 @@ for label, tag, base in (("the background sphere (session 35)", "sph", HERE), ("
             d = load(base / f"{tag}_c{cams}_s{seed}.json")
             if d is None:
                 continue
-            pf = load(base / (f"pf100sph_c{cams}_s{seed}.json" if tag == "sph" else f"pf100_c{cams}_s{seed}.json"))
+            pf = load(base / pf100_name(cams, seed))
             pf100 = pf["static_per_frame"] if pf else None
             statics = [m for m in (d["static_all"], d["static_per_frame"], pf100) if m]
             best = max(m["psnr"] for m in statics)
@@ -49,3 +50,8 @@ for label, tag, base in (("the background sphere (session 35)", "sph", HERE), ("
         a = np.array(rows)
         print(f"- {cams} cameras, seeds {len(rows)}: 4D {stats(a[:, 0])} (region {a[:, 1].mean():.2f}), lead over the "
               f"best static model {stats(a[:, 2], '+')} (region {a[:, 3].mean():+.2f})")
+
+
+if __name__ == "__main__":
+    print_table("the background sphere (session 35)", "sph", HERE, lambda c, s: f"pf100sph_c{c}_s{s}.json")
+    print_table("the mean colour (session 34)", "full", S34, lambda c, s: f"pf100_c{c}_s{s}.json")
