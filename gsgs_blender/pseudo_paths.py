@@ -206,18 +206,22 @@ def sample_pseudo_poses(context, count: int | None = None, mode: str | None = No
         raise GsgsError("no training cameras: import photos or mark scene cameras first")
     polyline, closed = curve_polyline(settings.pseudo_curve, context.evaluated_depsgraph_get())
     positions = resample_polyline(polyline, count or settings.pseudo_count, closed)
-    points = None
-    if settings.points_object is not None and settings.points_object.type == "MESH":
-        mesh = settings.points_object.data
-        co = np.empty(len(mesh.vertices) * 3, np.float32)
-        mesh.vertices.foreach_get("co", co)
-        mw = np.asarray(settings.points_object.matrix_world)
-        points = co.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3]
-    centre = scene_centre(cams, points)
+    centre = scene_centre(cams, sparse_points_world(settings))
     result = pseudo_cameras(positions, cams, mode or settings.pseudo_orientation, centre)
     settings.pseudo_poses = poses_to_json(result)
     invalidate_draw_cache()
     return result
+
+
+def sparse_points_world(settings) -> np.ndarray | None:
+    """The Sparse Points object's vertices in world coordinates (N x 3; those of the training cameras), or None."""
+    obj = settings.points_object
+    if obj is None or obj.type != "MESH":
+        return None
+    co = np.empty(len(obj.data.vertices) * 3, np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    mw = np.asarray(obj.matrix_world)
+    return co.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3]
 
 
 # -- viewport drawing ---------------------------------------------------------------------------------

@@ -11,13 +11,19 @@ single factor allows:
     lego, 8 views at 400x400, 97.7 s;
   - `--prior auto` on a forward-facing rig (densified by absolute gradients, density-guided dropout, the binocular
     shift every step at half size, warp-inpaint pseudo views at half size): LLFF flower at 504x378, 197.9 s.
+  - an inward shell (cameras on the walls of a room or dome looking in; `--prior auto` with the background sphere and
+    the binocular shift every step): Panoptic frame 0, 9 cameras at 640x360, and the 4D recipe of a multi-view video:
+    the same 9 cameras, frames 0-9 at 320x180 (session 37: each timed right after the lego cell and scaled by
+    its seconds over that cell's, so they sit on the same day as the references above).
   The machine's day moves such figures by tens of percent (the same f6f2ab9 flower cell took 382 s one morning and
   531 s that afternoon, and 319 s the day after): the machine probe below scales them. The references before
   (session 12's build, 88.1 / 63.5 / 142.3 s at a probe of 17.9 ms) no longer matched this build: on a fresh
   timings log the Santorini workflow below was stated 96 s and trained in 132 s (27 % short; session 30). Which of
   the changes since (and how much of the VM's day) account for it was not measured.
 Which recipe auto runs is read from the training cameras as the engine's effect plan reads it: the
-optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, else forward-facing.
+optical axes meet at a point (gsgs_engine.cameras.focus_point) -> the orbit recipe, or the inward shell's where the
+scene's sparse points lie out at the cameras' shell (gsgs_engine.effect_plan.rig_layout), else forward-facing; an
+imported multi-view video -> the 4D recipe.
 Per step the time grows less than linearly with a view's pixels: seconds per step ~ pixels^0.71 (measured
 between 200x200 and 1600x871 px runs of an earlier kernel, issue 15's photo job).
 Checked (not fitted) on the default headless workflow, scripts/reconstruct.py on photos_santorini (3 photos,
@@ -73,7 +79,15 @@ REFERENCES = {
     "plain": (130.0, 504 * 378),
     "orbit": (97.7, 400 * 400),
     "forward": (197.9, 504 * 378),  # the 1000-step recipe, which densifies by absolute gradients
+    # Session 37 (docs/runs/speed/s37/estimate_runs.sh references): each run right after the lego orbit cell on a quiet
+    # machine (probe 16-19 ms), taken as 97.7 s x (its seconds / that cell's 56.5 s): an inward shell (Panoptic frame 0,
+    # 9 cameras at 640x360, auto: the binocular view every step and the background sphere) 100.2 s, and the 4D
+    # recipe (the same cameras, frames 0-9 at 320x180, auto) 51.3 s
+    "inward": (97.7 * 100.2 / 56.5, 640 * 360),
+    "video": (97.7 * 51.3 / 56.5, 320 * 180),
 }
+RECIPE_NAMES = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "inward": "the inward-shell recipe",
+                "forward": "the forward-facing recipe", "video": "the 4D recipe"}
 # recipe -> seconds for REFERENCE_ITERS steps on CUDA, the same cells as REFERENCES (pixels as there), trained with
 # `"backend": "cuda"` on one NVIDIA H200 (2026-12-04, docs/speed.md "Session 33"); plain 3DGS not measured there
 REFERENCES_CUDA = {"orbit": 12.2, "forward": 24.6}
@@ -116,20 +130,30 @@ def train_size(width: int, height: int, resolution_scale: float, max_side: int =
     return round(width * scale), round(height * scale)
 
 
-def recipe(generator: str, cameras=None) -> str:
-    """Which measured recipe a run will be: "plain", "orbit" or "forward" (see REFERENCES).
+def recipe(generator: str, cameras=None, points=None, video: bool = False) -> str:
+    """Which measured recipe a run will be: "plain", "orbit", "inward", "forward" or "video" (see REFERENCES).
 
-    The generative priors (warp, diffusion) always render pseudo views; auto does where the cameras
-    do not look at a common point, as the effect plan decides (cameras: gsgs_engine Camera objects)."""
+    A multi-view video trains the 4D model ("video", whatever the generator: its weights-free recipe renders no
+    extra views). The generative priors (warp, diffusion) always render pseudo views; auto does where the cameras
+    do not look at a common point, as the effect plan decides (cameras: gsgs_engine Camera objects). Where they do,
+    the plan's rig reading (gsgs_engine.effect_plan.rig_layout) on the scene's sparse `points` (N x 3, the same
+    world as the cameras) tells an inward shell (the background sphere, the binocular view at every step) from an
+    object orbit; without enough points the engine triangulates its own, which the add-on cannot see beforehand, so
+    the figure is the orbit's."""
+    if video:
+        return "video"
     if generator in ("none", "depth"):
         return "plain"
     if generator != "auto":
         return "forward"
     if cameras is not None and len(cameras) >= 2:
-        from gsgs_engine.cameras import focus_point
+        from gsgs_engine.effect_plan import rig_layout
 
-        if focus_point(cameras)[1] == "optical axes intersection":
+        layout = rig_layout(cameras, points)
+        if layout["rig"] == "object orbit" or (layout["rig"] == "inward shell" and layout.get("unmeasured")):
             return "orbit"
+        if layout["rig"] == "inward shell":
+            return "inward"
     return "forward"
 
 
@@ -163,13 +187,14 @@ def timing_key(kind: str, device: str = "cpu") -> str:
 
 
 def estimate_seconds(iterations: int, width: int, height: int, resolution_scale: float, generator: str,
-                     max_side: int = 0, cameras=None, device: str = "cpu") -> float | None:
+                     max_side: int = 0, cameras=None, device: str = "cpu", points=None,
+                     video: bool = False) -> float | None:
     """Rough seconds of a training run of `iterations` steps on views of width x height, from the reference
     runs alone (`machine_factor` corrects it for this machine); on device "cuda" from the GPU references, None where
     the recipe has none there."""
     from gsgs_engine.effect_plan import AUTO_LONG_STEPS
 
-    kind = recipe(generator, cameras)
+    kind = recipe(generator, cameras, points, video)
     seconds, ref_pixels = REFERENCES[kind]
     timing_key(kind, device)  # an unknown device stops here
     if device != "cpu":
@@ -294,13 +319,14 @@ def machine_factor(kind: str, path: Path | None = None, device: str = "cpu") -> 
 
 
 def write_job_estimate(job_dir, iterations: int, width: int, height: int, resolution_scale: float, generator: str,
-                       max_side: int = 0, cameras=None, device: str = "cpu") -> dict:
+                       max_side: int = 0, cameras=None, device: str = "cpu", points=None, video: bool = False) -> dict:
     """Keep the estimate of a job about to start in its folder (estimate.json): the references scaled by the last
     probe (on the CPU), before the learned correction, which it will then teach; returns it. A recipe without a
     reference on the device (plain 3DGS on a GPU) is kept with estimated_s None, and is not learned from."""
-    reference_s = estimate_seconds(iterations, width, height, resolution_scale, generator, max_side, cameras, device)
+    reference_s = estimate_seconds(iterations, width, height, resolution_scale, generator, max_side, cameras, device,
+                                   points, video)
     speed = probe_factor() if device == "cpu" else 1.0
-    record = {"recipe": timing_key(recipe(generator, cameras), device), "device": device,
+    record = {"recipe": timing_key(recipe(generator, cameras, points, video), device), "device": device,
               "iterations": int(iterations), "size": list(train_size(width, height, resolution_scale, max_side)),
               "reference_s": reference_s, "probe_factor": speed,
               "estimated_s": None if reference_s is None else reference_s * speed}
@@ -362,8 +388,8 @@ def estimate_text(scene, inputs: dict | None = None, device: str = "cpu") -> str
     if inputs is None:
         return ""
     w, h = train_size(inputs["width"], inputs["height"], inputs["resolution_scale"], inputs["max_side"])
-    kind = recipe(inputs["generator"], inputs["cameras"])
-    name = {"plain": "plain 3DGS", "orbit": "the orbit recipe", "forward": "the forward-facing recipe"}[kind]
+    kind = recipe(inputs["generator"], inputs["cameras"], inputs.get("points"), inputs.get("video", False))
+    name = RECIPE_NAMES[kind]
     if device != "cpu":
         seconds = estimate_seconds(**inputs, device=device)
         if seconds is None:
@@ -402,4 +428,4 @@ def job_estimate_inputs(scene) -> dict | None:
     s = scene.gsgs
     return {"iterations": s.iterations, "width": max(w for w, _ in sizes), "height": max(h for _, h in sizes),
             "resolution_scale": s.resolution_scale, "generator": s.generator, "max_side": s.max_side,
-            "cameras": cameras}
+            "cameras": cameras, "points": pseudo_paths.sparse_points_world(s), "video": bool(s.video_source)}

@@ -208,6 +208,21 @@ def test_training_estimate_reproduces_its_reference_runs():
     forward = [cam((x, 0.0, 0.0), (x, 10.0, 0.0)) for x in (-0.2, 0.0, 0.2)]
     assert train_estimate.recipe("auto", orbit) == "orbit" and train_estimate.recipe("auto", forward) == "forward"
     assert train_estimate.recipe("none", orbit) == "plain" and train_estimate.recipe("warp", orbit) == "forward"
+    # the same converging cameras with sparse points out at their shell (a room, a dome): the inward shell's recipe;
+    # with the points inside it, or too few to tell (the engine triangulates its own), the orbit's
+    rng = np.random.default_rng(0)
+    wall = rng.normal(size=(200, 3))
+    wall = 4.5 * wall / np.linalg.norm(wall, axis=1, keepdims=True)
+    assert train_estimate.recipe("auto", orbit, wall) == "inward"
+    assert train_estimate.recipe("auto", orbit, wall * 0.2) == "orbit"
+    assert train_estimate.recipe("auto", orbit, wall[:5]) == "orbit"
+    assert train_estimate.recipe("none", orbit, wall) == "plain"
+    # a multi-view video trains the 4D model, whatever its rig or generator
+    assert train_estimate.recipe("auto", orbit, wall, video=True) == "video"
+    assert train_estimate.recipe("none", forward, video=True) == "video"
+    # their references: Panoptic frame 0 at 640x360 and its 10-frame clip at 320x180, timed beside the lego cell
+    assert est(1000, 640, 360, 1.0, "auto", cameras=orbit, points=wall) == pytest.approx(97.7 * 100.2 / 56.5)
+    assert est(1000, 640, 360, 0.5, "auto", cameras=orbit, video=True) == pytest.approx(97.7 * 51.3 / 56.5)
     assert est(1000, 400, 400, 1.0, "auto", cameras=orbit) == pytest.approx(97.7)  # lego auto, 400 px
     # 3000 steps or more of the orbit recipe: the shifted view at every step (effect_plan), 1.28x a step
     assert est(3000, 400, 400, 1.0, "auto", cameras=orbit) == pytest.approx(3 * 97.7 * 201.0 / 157.0)

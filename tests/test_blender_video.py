@@ -50,6 +50,11 @@ def test_import_makes_the_training_cameras_and_the_frame_range(addon, pano):
     assert spec["data"] == {"path": str(pano.resolve()), "format": "auto", "background": [1.0, 1.0, 1.0],
                             "train_views": 3, "frames": "1-3"}
     assert spec["pseudo_poses"] == []
+    # the Train panel's time estimate is the 4D recipe's
+    from gsgs_blender import train_estimate
+
+    assert train_estimate.job_estimate_inputs(scene)["video"]
+    assert "of the 4D recipe" in train_estimate.estimate_text(scene)
     # importing again replaces the cameras; then using scene cameras makes the job a photo job again
     s.video_train_cameras = 2
     assert bpy.ops.gsgs.import_video() == {"FINISHED"}
@@ -57,6 +62,7 @@ def test_import_makes_the_training_cameras_and_the_frame_range(addon, pano):
     assert len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 2
     assert bpy.ops.gsgs.use_scene_cameras() == {"FINISHED"}
     assert s.video_source == "" and train_spec(bpy.context)["data"]["format"] == "job"
+    assert not train_estimate.job_estimate_inputs(scene)["video"]
 
 
 def test_bad_folders_are_refused_with_the_reason(addon, tmp_path):

@@ -102,6 +102,22 @@ def test_train_panel_states_the_time_and_unused_path_poses_before_starting(addon
     labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
     estimate = [t for t in labels if t.startswith("Estimated: ~")]
     assert estimate and "1000 steps of the orbit recipe on 200x200 px" in estimate[0], labels  # the balanced preset on lego
+    # sparse points out at the cameras' shell (the walls of a room around them): the inward shell's recipe is stated
+    rng = np.random.default_rng(0)
+    wall = rng.normal(size=(100, 3))
+    wall = 4.0 * wall / np.linalg.norm(wall, axis=1, keepdims=True)
+    mesh = bpy.data.meshes.new("wall_points")
+    mesh.from_pydata([tuple(map(float, p)) for p in wall], [], [])
+    points = bpy.data.objects.new("wall_points", mesh)
+    scene.collection.objects.link(points)
+    scene.gsgs.points_object = points
+    labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
+    assert any("1000 steps of the inward-shell recipe on 200x200 px" in t for t in labels), labels
+    points.scale = (0.2, 0.2, 0.2)  # the same points inside the rig (an object): the orbit's again
+    bpy.context.view_layer.update()
+    labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
+    assert any("1000 steps of the orbit recipe on 200x200 px" in t for t in labels), labels
+    scene.gsgs.points_object = None
     scene.gsgs.generator = "none"
     labels = [kw.get("text", "") for name, _, kw in _draw_all(bpy.context) if name == "label"]
     assert any("path poses are unused" in t for t in labels)  # no generator: the path is not used
