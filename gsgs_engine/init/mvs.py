@@ -293,7 +293,11 @@ def frustum_points(views: list[_WorkView], n: int, generator: torch.Generator) -
         s = torch.rand(m, generator=generator, dtype=torch.float64)
         inv = 1.0 / view.far + s * (1.0 / view.near - 1.0 / view.far)
         depth = torch.full((view.gray.numel(),), float("nan"), dtype=torch.float64)
-        depth[pick] = 1.0 / inv
+        # A pixel drawn more than once takes its last draw's depth, every draw of it the same value: an indexed
+        # write of different values to one pixel is a race on several threads (the points differed run to run).
+        last = torch.full((view.gray.numel(),), -1, dtype=torch.long)
+        last.scatter_reduce_(0, pick, torch.arange(m), "amax")
+        depth[pick] = (1.0 / inv)[last[pick]]
         world = _backproject(view.camera, depth)[pick]
         pts.append(world.numpy())
         cols.append(view.rgb.reshape(-1, 3)[pick].numpy())
