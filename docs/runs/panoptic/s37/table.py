@@ -1,7 +1,7 @@
-"""Issue 31 on three time windows of the capture, seed 0, every model, today's recipe (texture rate 0.01): frames 0-9
-(session 36's grid), 10-19 (session 36, `--first-frame 10`) and 20-29 (session 37, `--first-frame 20`), the same
-command (docs/runs/panoptic/s36/screen.py with FIRST_FRAME; w20_cC_s0.json: ...:w20:C:0:4d,static_all,static_per_frame:
-1000:300, w20pf100_cC_s0.json: the per-frame models at 100 steps a frame). `python docs/runs/panoptic/s37/table.py`."""
+"""Issue 31 on other time windows of the capture, every model, today's recipe (texture rate 0.01): frames 0-9
+(session 36's grid), 10-19 (session 36, `--first-frame 10`) and 20-29 (session 37, `--first-frame 20`, seeds 0-2), the same
+command (docs/runs/panoptic/s36/screen.py with FIRST_FRAME; w20_cC_sS.json: ...:w20:C:S:4d,static_all,static_per_frame:
+1000:300, w20pf100_cC_sS.json: the per-frame models at 100 steps a frame). `python docs/runs/panoptic/s37/table.py`."""
 import importlib.util
 from pathlib import Path
 
@@ -11,5 +11,5 @@ _spec = importlib.util.spec_from_file_location("table_s35", HERE.parent / "s35" 
 table_s35 = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(table_s35)
 
-table_s35.print_table("frames 20-29 (session 37), seed 0", "w20", HERE, lambda c, s: f"w20pf100_c{c}_s{s}.json")
+table_s35.print_table("frames 20-29 (session 37), seeds 0-2", "w20", HERE, lambda c, s: f"w20pf100_c{c}_s{s}.json")
 table_s35.print_table("frames 10-19 (session 36), seed 0", "w10", S36, lambda c, s: f"w10pf100_c{c}_s{s}.json")
