@@ -154,3 +154,22 @@ def test_frustum_points_do_not_depend_on_the_thread_count():
         assert np.array_equal(other, runs[0])
     # every draw of a pixel lies at one depth: as many distinct points as pixels drawn (80 x 60 per view at most)
     assert len(np.unique(runs[0], axis=0)) <= 3 * 80 * 60
+
+
+def test_the_fallback_tops_up_in_proportion_to_what_the_stereo_missed():
+    """No cliff at min_points: a sweep that keeps half the minimum gets half the frustum points, one just under it a
+    few, one at or above it none (all of them were added below the minimum, none above: frames of one capture with
+    1,9xx and 2,0xx stereo points trained models 3 dB apart)."""
+    from gsgs_engine.init.mvs import fallback_count
+
+    cfg = MVSConfig(min_points=2000, fallback_points=20_000)
+    assert [fallback_count(n, cfg) for n in (0, 1000, 1990, 2000, 5000)] == [20_000, 10_000, 100, 0, 0]
+    tex = texture(seed=2)
+    views = [plane_view(x, tex) for x in (-0.4, 0.0, 0.4)]
+    stereo = dense_points(views, config=MVSConfig(num_depths=48, min_points=0), log=lambda _m: None)
+    n = len(stereo.points)
+    assert stereo.method == "mvs" and n > 100
+    topped = dense_points(views, config=MVSConfig(num_depths=48, min_points=2 * n, fallback_points=3000),
+                          log=lambda _m: None)
+    assert topped.method == "mvs+fallback" and len(topped.points) == n + 1500
+    assert np.array_equal(topped.points[:n], stereo.points)

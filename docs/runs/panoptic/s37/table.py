@@ -13,3 +13,18 @@ _spec.loader.exec_module(table_s35)
 
 table_s35.print_table("frames 20-29 (session 37), seeds 0-2", "w20", HERE, lambda c, s: f"w20pf100_c{c}_s{s}.json")
 table_s35.print_table("frames 10-19 (session 36), seed 0", "w10", S36, lambda c, s: f"w10pf100_c{c}_s{s}.json")
+
+# The per-frame models of 3 cameras again with the fallback in proportion (init.mvs.fallback_count; w20fb_c3_sS.json,
+# w20fbpf100_c3_sS.json: ...:w20fb:3:S:static_per_frame:1000:300 and ...:w20fbpf100:3:S:static_per_frame:1000:100);
+# the 4D and all-frames models do not reach the fallback, so theirs are the runs above.
+import json
+import tempfile
+
+with tempfile.TemporaryDirectory() as tmp:
+    for seed in (0, 1, 2):
+        merged = json.loads((HERE / f"w20_c3_s{seed}.json").read_text())
+        merged["static_per_frame"] = json.loads((HERE / f"w20fb_c3_s{seed}.json").read_text())["static_per_frame"]
+        (Path(tmp) / f"w20m_c3_s{seed}.json").write_text(json.dumps(merged))
+        (Path(tmp) / f"w20mpf100_c3_s{seed}.json").write_bytes((HERE / f"w20fbpf100_c3_s{seed}.json").read_bytes())
+    table_s35.print_table("frames 20-29, 3 cameras, the per-frame models with the fallback in proportion (session 37)",
+                          "w20m", Path(tmp), lambda c, s: f"w20mpf100_c{c}_s{s}.json")
