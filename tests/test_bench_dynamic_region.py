@@ -36,6 +36,28 @@ def test_masked_psnr_scores_only_the_region():
         masked_psnr(img, gt, np.ones((6, 8), bool))
 
 
+def test_evaluation_scores_the_region_and_the_rest_apart():
+    from types import SimpleNamespace
+
+    from gsgs_engine.train.evaluate import evaluate_views
+
+    rng = np.random.default_rng(1)
+    gt = rng.random((12, 16, 3), dtype=np.float32) * 0.5
+    region = np.zeros((12, 16), bool)
+    region[2:6, 3:9] = True
+    render = gt.copy()
+    render[region] += 0.1  # mse 0.01 inside the region
+    render[~region] += 0.01  # mse 1e-4 outside it
+    view = SimpleNamespace(name="cam/0", camera=SimpleNamespace(name="cam"), image=lambda: gt)
+    ev = evaluate_views(lambda cam: SimpleNamespace(color=torch.from_numpy(render)), [view],
+                        region_fn=lambda v: region, lpips=False)
+    assert ev["psnr_region"] == pytest.approx(20.0, abs=1e-3)
+    assert ev["psnr_outside"] == pytest.approx(40.0, abs=1e-3)
+    assert ev["per_view"][0]["psnr_outside"] == ev["psnr_outside"]
+    share = region.mean()  # the whole view's mse mixes the two by their pixel shares
+    assert ev["psnr"] == pytest.approx(-10 * math.log10(share * 0.01 + (1 - share) * 1e-4), abs=1e-3)
+
+
 def test_changing_pixels_find_what_moves():
     frames = []
     for f in range(5):
@@ -109,6 +131,9 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
             r = results[name]
             assert len(r["per_view"]) == 6  # two test cameras x three frames
             assert np.isfinite(r["psnr"]) and np.isfinite(r["psnr_region"]) and r["lpips"] is None
+            # the rest of each view (a video's still room) scored apart from the region, per view
+            assert np.isfinite(r["psnr_outside"])
+            assert all(v["psnr_outside"] is None or np.isfinite(v["psnr_outside"]) for v in r["per_view"])
             if name != "static_per_frame":  # one model: its techniques' reports (per-camera exposure)
                 assert r["techniques"]["exposure"]["cameras"] == int(n)
         assert (out / f"cameras_{n}" / "results.json").is_file()
@@ -118,6 +143,7 @@ def test_bench_on_a_panoptic_capture_with_two_camera_counts(pano, tmp_path):
         assert picture is not None and picture.shape[:2] == (3 * 12, 3 * 16), view  # three frames of 16x12 views
     table = (out / "results.md").read_text()
     assert table.count("| 2 | ") == 3 and table.count("| 3 | ") == 3 and "dynamic region PSNR" in table
+    assert "PSNR outside it" in table
 
 
 PANOPTIC = Path(__file__).resolve().parents[2] / "shared" / "data" / "panoptic_basketball"

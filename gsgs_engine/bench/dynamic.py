@@ -139,11 +139,13 @@ def _train_eval(trainer, test_views, renders_dir: Path | None, log, label: str, 
         f"{trainer.model.num_gaussians} Gaussians, held-out PSNR {ev['psnr']:.2f}"
         + (f", dynamic region {region:.2f}" if region is not None else ""))
     return {"psnr": ev["psnr"], "ssim": ev["ssim"], "lpips": ev["lpips"], "psnr_region": region,
+            "psnr_outside": ev.get("psnr_outside"),
             "techniques": {t.name: t.report() for t in trainer.techniques},
             "train_seconds": trainer.train_seconds, "iters": trainer.step,
             "num_gaussians": trainer.model.num_gaussians, "init": trainer.init_info.to_dict(),
             "per_view": [{"name": v["name"], "time": t.camera.time, "psnr": v["psnr"], "ssim": v["ssim"],
-                          "lpips": v["lpips"], "psnr_region": v.get("psnr_region")}
+                          "lpips": v["lpips"], "psnr_region": v.get("psnr_region"),
+                          "psnr_outside": v.get("psnr_outside")}
                          for v, t in zip(ev["per_view"], test_views)]}
 
 
@@ -259,6 +261,7 @@ def run_dynamic_bench(scene, out_dir: Path, iters: int, per_frame_iters: int, in
     per["ssim"] = float(np.mean([v["ssim"] for v in per["per_view"]]))
     per["lpips"] = mean_present([v["lpips"] for v in per["per_view"]]) if lpips else None
     per["psnr_region"] = mean_present([v["psnr_region"] for v in per["per_view"]])
+    per["psnr_outside"] = mean_present([v["psnr_outside"] for v in per["per_view"]])
     results["static_per_frame"] = per
     return results
 
@@ -303,11 +306,12 @@ def format_table(results: dict) -> str:
     def num(v, fmt: str) -> str:
         return format(v, fmt) if v is not None else "-"
 
-    rows = [f"{'model':<18}{'PSNR':>8}{'region':>8}{'SSIM':>8}{'LPIPS':>8}{'train s':>10}{'steps':>8}"
+    rows = [f"{'model':<18}{'PSNR':>8}{'region':>8}{'rest':>8}{'SSIM':>8}{'LPIPS':>8}{'train s':>10}{'steps':>8}"
             f"{'Gaussians':>11}"]
     for name in [v for v in VARIANTS if v in results]:
         r = results[name]
-        rows.append(f"{name:<18}{r['psnr']:>8.2f}{num(r.get('psnr_region'), '.2f'):>8}{r['ssim']:>8.4f}"
+        rows.append(f"{name:<18}{r['psnr']:>8.2f}{num(r.get('psnr_region'), '.2f'):>8}"
+                    f"{num(r.get('psnr_outside'), '.2f'):>8}{r['ssim']:>8.4f}"
                     f"{num(r.get('lpips'), '.4f'):>8}{r['train_seconds']:>10.1f}{r['iters']:>8d}"
                     f"{r['num_gaussians']:>11d}")
     return "\n".join(rows)
@@ -318,8 +322,9 @@ def format_markdown(every: dict) -> str:
     def num(v, fmt: str) -> str:
         return format(v, fmt) if v is not None else "-"
 
-    lines = ["| cameras | model | PSNR | dynamic region PSNR | SSIM | LPIPS (VGG) | train s | Gaussians |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| cameras | model | PSNR | dynamic region PSNR | PSNR outside it | SSIM | LPIPS (VGG) | train s "
+             "| Gaussians |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for n in sorted(every, key=int):
         results = every[n]
         best_static = max((results[v]["psnr"] for v in VARIANTS if v != "4d" and v in results), default=None)
@@ -327,7 +332,8 @@ def format_markdown(every: dict) -> str:
             r = results[name]
             bold = name == "4d" and best_static is not None and r["psnr"] > best_static
             psnr = f"**{r['psnr']:.2f}**" if bold else f"{r['psnr']:.2f}"
-            lines.append(f"| {n} | {name} | {psnr} | {num(r.get('psnr_region'), '.2f')} | {r['ssim']:.3f} | "
+            lines.append(f"| {n} | {name} | {psnr} | {num(r.get('psnr_region'), '.2f')} | "
+                         f"{num(r.get('psnr_outside'), '.2f')} | {r['ssim']:.3f} | "
                          f"{num(r.get('lpips'), '.3f')} | {r['train_seconds']:.0f} | {r['num_gaussians']} |")
     return "\n".join(lines)
 

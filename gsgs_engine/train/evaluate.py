@@ -56,7 +56,8 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
     Renders are written for all views when there are at most 30, else for the first 8
     (or `max_renders`). Returns mean psnr / ssim / lpips and a per-view list.
     region_fn(view) -> bool H x W mask or None: PSNR inside that region too ("psnr_region", the mean
-    over the views whose region has pixels; gsgs bench dynamic scores the moving people with it).
+    over the views whose region has pixels; gsgs bench dynamic scores the moving people with it) and outside it
+    ("psnr_outside": the rest of the view, a video's still room).
     lpips=False skips LPIPS (its value is then None, with the reason).
     """
     from gsgs_engine.metrics import lpips_or_none, masked_psnr, psnr, ssim
@@ -75,6 +76,7 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
             if region_fn is not None:
                 region = region_fn(view)
                 entry["psnr_region"] = None if region is None else masked_psnr(img, gt, region)
+                entry["psnr_outside"] = None if region is None else masked_psnr(img, gt, ~np.asarray(region))
             for net in LPIPS_NETS:
                 lp, reason = lpips_or_none(img, gt, net=net) if lpips else (None, "LPIPS not asked for")
                 entry[f"lpips_{net}"] = lp
@@ -93,7 +95,8 @@ def evaluate_views(render_fn: Callable, views: list, renders_dir: Path | None = 
            for net, values in lpips_values.items()},
         "num_views": len(per_view),
         "per_view": per_view,
-        **({"psnr_region": mean_present([v.get("psnr_region") for v in per_view])} if region_fn is not None else {}),
+        **({key: mean_present([v.get(key) for v in per_view]) for key in ("psnr_region", "psnr_outside")}
+           if region_fn is not None else {}),
         "seconds": time.perf_counter() - t0,
     }
     result["lpips"] = result[f"lpips_{LPIPS_MAIN_NET}"]
