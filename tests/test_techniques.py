@@ -471,6 +471,37 @@ def test_absgrad_feeds_densification_the_absolute_statistic_with_a_raised_thresh
     assert absgrad.report()["grad_threshold"] == pytest.approx(3.0 * base)
 
 
+def test_clone_split_boundary_decides_which_gaussians_are_split():
+    from gsgs_engine.train.densify import DensifyConfig, DensifyStats, clone_and_split_rows
+    from gsgs_engine.train.techniques.clone_split import CloneSplitBoundary
+
+    for bad in (0, 1, -0.1):
+        with pytest.raises(GsgsError, match="boundary"):
+            CloneSplitBoundary(boundary=bad)
+    trainer = make_trainer(iters=30, densify=True)
+    trainer.setup()
+    technique = trainer.add_technique(CloneSplitBoundary(boundary=0.004))
+    assert trainer.config.densify_config.percent_dense == 0.004
+    assert technique.report()["boundary"] == 0.004 and technique.report()["default_boundary"] == 0.01
+    # Gaussians at 0.002 / 0.007 / 0.02 of the extent, all above the gradient threshold: 3DGS's 0.01 clones the
+    # first two and splits the third; the boundary at 0.004 splits the middle one too
+    model = trainer.model
+    with torch.no_grad():
+        keep = torch.zeros(model.num_gaussians, dtype=torch.bool)
+        keep[:3] = True
+        from gsgs_engine.train.densify import keep_gaussians
+
+        keep_gaussians(model, trainer.optimizer, keep)
+        model.params["log_scales"][:] = torch.log(torch.tensor([[0.002], [0.007], [0.02]])).expand(3, 3)
+    stats = DensifyStats(3)
+    stats.grad_accum[:] = 1.0
+    stats.denom[:] = 1.0
+    for boundary, cloned, split in ((0.01, [True, True, False], [False, False, True]),
+                                    (0.004, [True, False, False], [False, True, True])):
+        _, clone_mask, split_mask = clone_and_split_rows(model, stats, 1.0, DensifyConfig(percent_dense=boundary))
+        assert clone_mask.tolist() == cloned and split_mask.tolist() == split
+
+
 def test_absgrad_on_the_reference_rasteriser_keeps_the_plain_statistic_and_says_so():
     from gsgs_engine.train.techniques.absgrad import AbsoluteGradients
 
@@ -522,7 +553,7 @@ def test_resume_with_guided_dropout_is_bit_identical(tmp_path, guide):
 # record the settings as asked, or the resume is refused as "trained with other settings" (found on a cancelled
 # LLFF protocol cell)
 @pytest.mark.parametrize("max_gaussians,techniques", [(None, ALL), (100_000, ALL), (None, "smoothing," + ALL),
-                                                       (None, "absgrad," + ALL)])
+                                                       (None, "absgrad," + ALL), (None, "clone_split," + ALL)])
 def test_resume_with_techniques_is_bit_identical(tmp_path, max_gaussians, techniques):
     straight = _run(tmp_path / "a", max_gaussians=max_gaussians, techniques=techniques)
     interrupted = _run(tmp_path / "b", until=20, max_gaussians=max_gaussians, techniques=techniques)

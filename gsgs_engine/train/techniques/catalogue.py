@@ -15,6 +15,7 @@ import inspect
 from gsgs_engine import GsgsError
 from gsgs_engine.train.techniques.absgrad import AbsoluteGradients
 from gsgs_engine.train.techniques.binocular import BinocularConsistency
+from gsgs_engine.train.techniques.clone_split import CloneSplitBoundary
 from gsgs_engine.train.techniques.coregularisation import CoRegularisation
 from gsgs_engine.train.techniques.count_control import GaussianBudget
 from gsgs_engine.train.techniques.dropout import GaussianDropout
@@ -26,6 +27,8 @@ from gsgs_engine.train.techniques.smoothing import SmoothingFilter
 TECHNIQUES = {
     "absgrad": (AbsoluteGradients, "densify by the pixels' absolute screen-space gradients (AbsGS; threshold=4 x "
                                    "3DGS's, gsplat's 0.0008); the compiled CPU rasteriser or CUDA"),
+    "clone_split": (CloneSplitBoundary, "densification clones Gaussians up to boundary=0.005 x the scene extent and "
+                                        "splits larger ones (3DGS: 0.01)"),
     "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
     "smoothing": (SmoothingFilter, "Mip-Splatting's 3D smoothing filter: no Gaussian finer than its finest training "
                                    "pixel (variance=0.2 pixels^2), baked into the model at the last step"),
