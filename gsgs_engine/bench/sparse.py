@@ -62,6 +62,7 @@ ABLATION: dict[str, dict] = {
     "dense + exposure": {"prior": "none", "init": "mvs", "techniques": ["exposure"]},
     "dense + smoothing": {"prior": "none", "init": "mvs", "techniques": ["smoothing"]},
     "dense + absgrad": {"prior": "none", "init": "mvs", "techniques": ["absgrad"]},
+    "dense + clone_split": {"prior": "none", "init": "mvs", "techniques": ["clone_split"]},
     "dense + depth regulariser": {"prior": "depth", "init": "mvs", "prior_settings": {"depth_source": "sparse"}},
     "auto": VARIANTS["auto"],
 }
