@@ -15,7 +15,7 @@ so where that is below the 1.0 dB issue 31 asks for, the rest must come from a b
 usage: python docs/runs/panoptic/s38/oracle.py CAMS FIRST_FRAME RUN_4D RUN_STATIC [STATIC_MODEL] [...more quadruples]
   RUN_4D: a bench output folder holding renders/4d; RUN_STATIC: one holding renders/STATIC_MODEL
   (static_per_frame: renders/static_per_frame/t*/; static_all: renders/static_all/).
-  Prints one table row per pair and writes JSON lines to stdout's end when --json FILE is given.
+  Prints one table row per pair; --json FILE also writes one JSON line per pair to FILE.
 """
 
 from __future__ import annotations
