@@ -33,8 +33,8 @@ also beat plain 3DGS's 1000 (23.60 / 16.08 dB) in less time, so plain 3DGS is of
 fast = 300 steps of the same recipe as balanced. What each preset measured (the add-on's tooltips read these lines;
 "a scene" = plan, initialisation, training and prior, not the evaluation; protocol cells, seeds 0-2):
   fast  auto, 300 steps: NeRF-synthetic 8 views 24.13 dB in 38-48 s a scene, LLFF 3 views 18.84 dB in 71-96 s (2-core CPU; plain 3DGS: 19.86 / 16.13 dB in 16-29 s)
-  balanced  auto, 1000 steps: NeRF-synthetic 8 views 26.97 dB in 101-128 s a scene, LLFF 3 views 20.65 dB in 162-195 s (2-core CPU)
-  best  auto, 3000 steps: NeRF-synthetic 8 views 27.55 dB in 279-554 s a scene (2-core CPU); LLFF 3 views 20.86 dB (another CPU)
+  balanced  auto, 1000 steps: NeRF-synthetic 8 views 26.98 dB in 52-70 s a scene, LLFF 3 views 20.75 dB in 110-141 s (2-core CPU)
+  best  auto, 3000 steps: NeRF-synthetic 8 views 27.63 dB in 170-212 s a scene (2-core CPU); LLFF 3 views 20.86 dB (another CPU)
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,

@@ -276,6 +276,7 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     long_run = plan_effects(make_scene(n_train=4, rgba=True), TrainConfig(iters=AUTO_LONG_STEPS), AUTO, SH1,
                             log=lambda m: None)
     assert long_run["techniques"].value == list(AUTO_ORBIT_LONG_TECHNIQUES) and "binocular" in AUTO_ORBIT_LONG_TECHNIQUES
+    assert AUTO_ORBIT_LONG_TECHNIQUES[0] == "clone_split" and "clone / split" in long_run["techniques"].reason  # s39
     assert "every step" in long_run["techniques"].reason
     assert plan_effects(make_scene(n_train=4, rgba=True), TrainConfig(iters=AUTO_LONG_STEPS - 1), AUTO, SH1,
                         log=lambda m: None)["techniques"].value == list(AUTO_ORBIT_TECHNIQUES)

@@ -1,14 +1,15 @@
 """Session 38's screens (docs/sparse_techniques.md "Session 38"): one row per protocol x variant, the mean over the
 seeds present of PSNR / SSIM / LPIPS (VGG) / train seconds / Gaussians, and each scene's PSNR per seed.
-python docs/runs/screens_2026-12-05s38/table.py"""
+python docs/runs/screens_2026-12-05s38/table.py [FOLDER]   (FOLDER: another session's screens, e.g. ../screens_2026-12-05s39)"""
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
 cells = defaultdict(dict)
-for f in sorted(Path(__file__).parent.glob("*_seed*.json")):
+for f in sorted((Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).parent).glob("*_seed*.json")):
     protocol, rest = f.stem.split("_", 1)
     m = json.loads(f.read_text())
     for scene in ("blender_lego", "blender_chair", "llff_flower", "llff_horns"):
