@@ -71,6 +71,8 @@ AUTO_TECHNIQUES = ("count_control", "dropout", "binocular", "opacity_decay")
 # mean rate, unbiased; techniques/dropout.py). LLFF protocol, 3 views, 1000 steps, CPU, seeds 0-2: 20.39 +- 0.14
 # -> 20.65 +- 0.10 dB (flower 20.77 -> 21.00, horns 20.01 -> 20.29), LPIPS and SSIM equal or better. On the
 # NeRF-synthetic orbits seed 0 moved lego +0.09 and chair -0.16 dB, so the orbit recipe keeps uniform dropout.
+# Against no dropout at all (session 40, today's recipe otherwise): LLFF seeds 0-2 20.67 -> 20.75 dB (flower -0.03,
+# horns +0.17), though LPIPS is 0.011 better without it; so it stays (docs/sparse_techniques.md, "Session 40").
 # The binocular shifted view renders at half size there (a quarter of its pixels; its warp compares the
 # area-averaged photo): LLFF, 3 views, 1000 steps, CPU, seeds 0-2, this recipe with the view at full size against
 # half (2026-11-27): 20.49 -> 20.52 dB (flower 20.83 -> 20.78, horns 20.15 -> 20.25; paired by seed -0.06 / +0.07 /
