@@ -123,6 +123,8 @@ AUTO_ORBIT_LONG_MEASURED = ("the binocular view at every step on an object orbit
                             "(docs/sparse_techniques.md)")
 # A forward-facing rig trained as long keeps the binocular view at full size: the half-size view was measured at
 # 1000 steps only, and the LLFF figures at 3000 steps (20.86 +- 0.09 dB, the `best` preset) were made with the full one.
+# It does not take the orbits' clone / split boundary: LLFF 3 views at 3000 steps, seeds 0-2, 20.81 -> 20.96 dB, but
+# unseen seeds 3-5 20.96 -> 20.93 (sessions 40-41, docs/sparse_techniques.md; level at 1000 steps too, session 38).
 AUTO_FORWARD_LONG_TECHNIQUES = ("count_control", "dropout:guide=density", "binocular", "opacity_decay")
 AUTO_FORWARD_LONG_MEASURED = ("density-guided dropout and the binocular view at full size on a forward-facing rig "
                               "trained 3000 steps or more: LLFF 3 views at 3000 steps, seeds 0-2, 20.86 dB "
