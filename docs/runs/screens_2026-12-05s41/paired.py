@@ -40,3 +40,13 @@ for tag in ("L3k", "L3kcs", "L3kab", "L3kh"):
         print(f"seed 0 {tag:6s} " + " / ".join(f"{m['psnr']:.2f}" for m in got)
               + f"  mean {np.mean([m['psnr'] for m in got]):.2f}  SSIM {np.mean([m['ssim'] for m in got]):.3f}"
               + f"  LPIPS {np.mean([m['lpips'] for m in got]):.3f}  train s {np.mean([m['train_seconds'] for m in got]):.0f}")
+# absgrad first in the long forward recipe (L3kab), paired with L3k by seed over the seeds both have
+both = [k for k in range(6) if all(cell(t, s, k) for t in ("L3k", "L3kab") for s in SCENES)]
+for k in both:
+    print(f"L3kab seed {k}: " + "; ".join(f"{s} {cell('L3k', s, k)['psnr']:.2f} -> {cell('L3kab', s, k)['psnr']:.2f}"
+                                          for s in SCENES)
+          + f"  train s {np.mean([cell('L3kab', s, k)['train_seconds'] for s in SCENES]):.0f}")
+if both:
+    print(f"L3kab seeds {','.join(map(str, both))}: PSNR {mean('L3k', both, 'psnr'):.2f} -> {mean('L3kab', both, 'psnr'):.2f}"
+          f"  SSIM {mean('L3k', both, 'ssim'):.3f} -> {mean('L3kab', both, 'ssim'):.3f}"
+          f"  LPIPS {mean('L3k', both, 'lpips'):.3f} -> {mean('L3kab', both, 'lpips'):.3f}")
