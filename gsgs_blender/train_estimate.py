@@ -101,8 +101,8 @@ ORBIT_EVERY_STEP_FACTOR = 201.0 / 157.0
 # at 1000 steps trained in 160.1 s that way against 137.8 s (means of seeds 0-2 of the 3-seed grid, 2026-11-27, one
 # cell at a time with kernel builds beside some cells: not a quiet pair; docs/speed.md).
 FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
-# ... and the forward-facing recipe of shorter schedules (the reference) densifies by absolute gradients since
-# session 29 (AbsGS; the compiled backward computes the statistic), which the long one and the other generators do
+# ... and the forward-facing recipe (the reference; the long one too since session 42) densifies by absolute
+# gradients since session 29 (AbsGS; the compiled backward computes the statistic), which the other generators do
 # not: flower auto steps 1-1000 172.9 / 175.9 s without, 184.0 / 186.3 s with it (two pairs alternating on a quiet
 # machine, 2026-11-29; docs/speed.md, "Session 29").
 FORWARD_ABSGRAD_FACTOR = (184.0 + 186.3) / (172.9 + 175.9)
@@ -204,7 +204,7 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
         seconds = REFERENCES_CUDA[kind]
     if kind == "orbit" and iterations >= AUTO_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
-    if kind == "forward" and (generator != "auto" or iterations >= AUTO_LONG_STEPS):  # no absolute gradients
+    if kind == "forward" and generator != "auto":  # no absolute gradients
         seconds /= FORWARD_ABSGRAD_FACTOR
     if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... the view at full size
         seconds *= FORWARD_FULL_VIEW_FACTOR

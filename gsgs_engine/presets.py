@@ -34,7 +34,7 @@ fast = 300 steps of the same recipe as balanced. What each preset measured (the 
 "a scene" = plan, initialisation, training and prior, not the evaluation; protocol cells, seeds 0-2):
   fast  auto, 300 steps: NeRF-synthetic 8 views 24.13 dB in 38-48 s a scene, LLFF 3 views 18.84 dB in 71-96 s (2-core CPU; plain 3DGS: 19.86 / 16.13 dB in 16-29 s)
   balanced  auto, 1000 steps: NeRF-synthetic 8 views 26.98 dB in 52-70 s a scene, LLFF 3 views 20.75 dB in 110-141 s (2-core CPU)
-  best  auto, 3000 steps: NeRF-synthetic 8 views 27.63 dB in 170-212 s a scene (2-core CPU); LLFF 3 views 20.81 dB, 20.88 over seeds 0-5, in 337-474 s of training a scene (2-core CPU)
+  best  auto, 3000 steps: NeRF-synthetic 8 views 27.63 dB in 170-212 s a scene (2-core CPU); LLFF 3 views 21.24 dB, 21.20 over seeds 0-5, in 473-547 s of training a scene (2-core CPU)
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default
 take the preset's value; flags the user typed win) or returns (TrainConfig, PriorConfig,

@@ -301,6 +301,8 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
                               log=lambda m: None)["techniques"]  # a long schedule: the full-size view it was measured with
     assert front_long.value == list(AUTO_FORWARD_LONG_TECHNIQUES) and "binocular" in AUTO_FORWARD_LONG_TECHNIQUES
     assert "full size" in front_long.reason
+    # ... densified by absolute gradients, as the 1000-step recipe (sessions 41-42)
+    assert AUTO_FORWARD_LONG_TECHNIQUES[0] == "absgrad" and "absolute gradients" in front_long.reason
     assert plan(make_scene(n_train=4), replace(AUTO, prior="none"))["techniques"].value == []  # the baseline stays plain
     video = plan_effects(make_scene(times=[0.0, 0.3, 0.6, 1.0]), TrainConfig(), AUTO, SH1, log=lambda m: None)
     # the 4D recipe: one camera a frame here, so the few-camera one (dropout and opacity decay too)
