@@ -32,7 +32,7 @@ and LPIPS better too), for about 2x the wait on the orbits and 3.3-4.4x on the f
 also beat plain 3DGS's 1000 (23.60 / 16.08 dB) in less time, so plain 3DGS is off the front on sparse captures and
 fast = 300 steps of the same recipe as balanced. What each preset measured (the add-on's tooltips read these lines;
 "a scene" = plan, initialisation, training and prior, not the evaluation; protocol cells, seeds 0-2):
-  fast  auto, 300 steps: NeRF-synthetic 8 views 24.13 dB in 38-48 s a scene, LLFF 3 views 18.84 dB in 71-96 s (2-core CPU; plain 3DGS: 19.86 / 16.13 dB in 16-29 s)
+  fast  auto, 300 steps: NeRF-synthetic 8 views 23.97 dB in 24-31 s a scene, LLFF 3 views 18.92 dB in 50-63 s (2-core CPU; plain 3DGS, session 24: 19.86 / 16.13 dB in 16-29 s)
   balanced  auto, 1000 steps: NeRF-synthetic 8 views 26.98 dB in 52-70 s a scene, LLFF 3 views 20.75 dB in 110-141 s (2-core CPU)
   best  auto, 3000 steps: NeRF-synthetic 8 views 27.63 dB in 170-212 s a scene (2-core CPU); LLFF 3 views 21.24 dB, 21.20 over seeds 0-5, in 473-547 s of training a scene (2-core CPU)
 

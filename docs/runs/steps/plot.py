@@ -1,60 +1,95 @@
-"""The accuracy-vs-steps plot of docs/speed.md (run from the repository root): the cells' figures as measured there.
+"""The accuracy-against-steps plot of docs/speed.md (run from the repository root): `--prior auto` as it runs today
+(session 42's recipes), read from the protocol cells' metrics files; seeds 0-2, the mean over seeds with their spread
+as error bars, each point annotated with the median training seconds of its cells (2-core CPU, AMD EPYC with AVX-512,
+two threads, one cell at a time; cells beside a CI run excluded from the seconds).
 
-`--prior auto`, the recipe of this build (the orbit recipe's binocular view every second step, density-guided dropout on LLFF); NeRF-synthetic:
-mean over seeds 0-2 with the seeds' spread as error bars (1000 steps: docs/speed.md's 3-seed bino2 grid, docs/runs/screens_2026-11-26/; 3000
-steps: the *_3000_seed*.metrics.json beside this file); LLFF: seeds 0-2 too (1000 steps: docs/runs/screens_2026-11-26/
-llff_{flower,horns}_ddrop_seed*; 3000 steps: llff_{flower,horns}_auto_3000_seed* here); lego and flower at 10000
-steps: seed 0 ({blender_lego,llff_flower}_auto_10000_seed0 here).
+  300 steps (the `fast` preset): docs/runs/screens_2026-12-05s42/*_auto300_seed*.json (session 42)
+  1000 steps (`balanced`): orbits docs/runs/screens_2026-12-05s38/*_pd005_seed*.json (session 38: the recipe with
+      the clone / split boundary), forward-facing docs/runs/screens_2026-12-05s40/*_planned_seed*.json (session 40)
+  3000 steps (`best`): orbits docs/runs/screens_2026-12-05s39/*_L3kcs_seed*.json (session 39), forward-facing
+      docs/runs/screens_2026-12-05s41/*_L3kab_seed*.json (sessions 41-42: absolute gradients)
+  10000 steps: session 10's recipe, seed 0 only (docs/runs/steps/*_auto_10000_seed0.metrics.json), hollow markers:
+      an older recipe, not comparable with the lines, kept as the only 10000-step cells there are.
 """
+import json
 import statistics
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-# name -> {steps: ([PSNR per seed], [LPIPS per seed])}
-CELLS = {
-    "blender_lego (8 views)": {1000: ([24.33, 24.62, 24.30], [0.120, 0.119, 0.121]),
-                               3000: ([25.30, 25.39, 25.52], [0.096, 0.095, 0.095]),
-                               10000: ([25.37], [0.095])},  # seed 0 only
-    "blender_chair (8 views)": {1000: ([27.82, 27.56, 28.09], [0.073, 0.074, 0.072]),
-                                3000: ([28.54, 28.59, 28.60], [0.057, 0.057, 0.055])},
-    "llff_flower (3 views)": {1000: ([20.90, 20.94, 21.17], [0.301, 0.300, 0.304]),
-                              3000: ([21.01, 21.05, 21.02], [0.268, 0.266, 0.268]),
-                              10000: ([20.89], [0.260])},  # seed 0 only
-    "llff_horns (3 views)": {1000: ([20.36, 20.17, 20.35], [0.321, 0.319, 0.316]),
-                             3000: ([20.52, 20.72, 20.87], [0.267, 0.268, 0.264])},
-}
+RUNS = Path("docs/runs")
+SCENES = {"blender_lego (8 views)": ("blender", "lego"), "blender_chair (8 views)": ("blender", "chair"),
+          "llff_flower (3 views)": ("llff", "flower"), "llff_horns (3 views)": ("llff", "horns")}
+# steps -> protocol -> (folder, tag)
+CELLS = {300: {"blender": ("screens_2026-12-05s42", "auto300"), "llff": ("screens_2026-12-05s42", "auto300")},
+         1000: {"blender": ("screens_2026-12-05s38", "pd005"), "llff": ("screens_2026-12-05s40", "planned")},
+         3000: {"blender": ("screens_2026-12-05s39", "L3kcs"), "llff": ("screens_2026-12-05s41", "L3kab")}}
+SEEDS = (0, 1, 2)
+BESIDE_CI = {("llff", "flower", 3000, 1), ("llff", "horns", 3000, 1)}  # session 41's seed 1: seconds not comparable
+OLD_10000 = {"blender_lego (8 views)": RUNS / "steps/blender_lego_auto_10000_seed0.metrics.json",
+             "llff_flower (3 views)": RUNS / "steps/llff_flower_auto_10000_seed0.metrics.json"}
 
 
-def mean_sd(values):
-    return statistics.mean(values), (statistics.stdev(values) if len(values) > 1 else 0.0)
+def cell(protocol, scene, steps, seed):
+    folder, tag = CELLS[steps][protocol]
+    return json.loads((RUNS / folder / f"{protocol}_{protocol}_{scene}_{tag}_seed{seed}.json").read_text())
 
 
-fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
-for name, by_steps in CELLS.items():
-    steps = sorted(by_steps)
-    for axis, k in ((a, 0), (b, 1)):
-        stats = [mean_sd(by_steps[s][k]) for s in steps]
-        axis.errorbar(steps, [m for m, _ in stats], yerr=[sd for _, sd in stats], fmt="o-", capsize=3, label=name)
-for axis in (a, b):
-    axis.set_xscale("log")
-    axis.set_xticks([1000, 3000, 10000], ["1000", "3000", "10000"])
-    axis.minorticks_off()
-a.set_xlabel("training steps"); a.set_ylabel("test PSNR (dB)"); a.grid(alpha=0.3)
-b.set_xlabel("training steps"); b.set_ylabel("test LPIPS (VGG), lower is better")
-b.grid(alpha=0.3)
-a.legend(fontsize=8)
-# measured training seconds on the 2-core machine, two threads (docs/speed.md: the estimate's reference cells of
-# session 10, the quiet 3000-step LLFF cells of session 9, the 10000-step lego cell of session 10; the 10000-step
-# flower cell of session 11 ran beside other cells and is not annotated)
-SECONDS = {("blender_lego (8 views)", 1000): 78, ("blender_lego (8 views)", 10000): 1036,
-           ("llff_flower (3 views)", 1000): 188, ("llff_flower (3 views)", 3000): 570,
-           ("llff_horns (3 views)", 3000): 580}
-for (name, steps), sec in SECONDS.items():
-    psnr = mean_sd(CELLS[name][steps][0])[0]
-    a.annotate(f"{sec} s", (steps, psnr), textcoords="offset points", xytext=(-34 if steps == 10000 else 4, -11),
-               fontsize=7)
-fig.suptitle("--prior auto, 2-core CPU: what longer schedules buy (seeds 0-2; 10000 steps: seed 0)")
-fig.tight_layout(); fig.savefig("docs/accuracy_steps.png", dpi=100)
+def table():
+    """name -> steps -> (PSNR mean, sd, LPIPS mean, sd, median train seconds)"""
+    out = {}
+    for name, (protocol, scene) in SCENES.items():
+        for steps in CELLS:
+            got = [cell(protocol, scene, steps, k) for k in SEEDS]
+            assert all(m["iterations"] == steps for m in got), (name, steps)
+            psnr, lpips = [m["psnr"] for m in got], [m["lpips"] for m in got]
+            secs = [m["train_seconds"] for k, m in zip(SEEDS, got) if (protocol, scene, steps, k) not in BESIDE_CI]
+            out.setdefault(name, {})[steps] = (statistics.mean(psnr), statistics.stdev(psnr), statistics.mean(lpips),
+                                               statistics.stdev(lpips), statistics.median(secs))
+    return out
+
+
+if __name__ == "__main__":
+    rows = table()
+    print("| scene | steps | PSNR (seeds 0-2) | LPIPS (VGG) | median train s a cell |\n|---|---|---|---|---|")
+    for name, by_steps in rows.items():
+        for steps, (p, psd, lp, lsd, sec) in by_steps.items():
+            print(f"| {name} | {steps} | {p:.2f} ± {psd:.2f} | {lp:.3f} | {sec:.0f} |")
+    for protocol in ("blender", "llff"):
+        for steps in CELLS:
+            names = [n for n, (p, _) in SCENES.items() if p == protocol]
+            per_seed = [statistics.mean(cell(protocol, SCENES[n][1], steps, k)["psnr"] for n in names) for k in SEEDS]
+            print(f"{protocol} {steps} steps: {statistics.mean(per_seed):.2f} ± {statistics.stdev(per_seed):.2f} dB")
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 4.2))
+    for i, (name, by_steps) in enumerate(rows.items()):
+        steps = sorted(by_steps)
+        colour = f"C{i}"
+        a.errorbar(steps, [by_steps[s][0] for s in steps], yerr=[by_steps[s][1] for s in steps], fmt="o-",
+                   capsize=3, color=colour, label=name)
+        b.errorbar(steps, [by_steps[s][2] for s in steps], yerr=[by_steps[s][3] for s in steps], fmt="o-",
+                   capsize=3, color=colour, label=name)
+        for s in steps:  # of the two LLFF lines, the upper one's seconds above its points, the others' below
+            above = ("flower" in name) == (s != 300)
+            a.annotate(f"{by_steps[s][4]:.0f} s", (s, by_steps[s][0]), textcoords="offset points",
+                       xytext=(4, 5 if above and "llff" in name else -11), fontsize=7, color=colour)
+        if name in OLD_10000:
+            old = json.loads(OLD_10000[name].read_text())
+            a.plot([10000], [old["psnr"]], "o", mfc="none", color=colour)
+            b.plot([10000], [old["lpips"]], "o", mfc="none", color=colour)
+    for axis in (a, b):
+        axis.set_xscale("log")
+        axis.set_xticks([300, 1000, 3000, 10000], ["300\nfast", "1000\nbalanced", "3000\nbest", "10000"])
+        axis.minorticks_off()
+        axis.grid(alpha=0.3)
+        axis.set_xlabel("training steps")
+    a.set_ylabel("test PSNR (dB)")
+    a.margins(y=0.1)
+    b.set_ylabel("test LPIPS (VGG), lower is better")
+    handles, labels = a.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8)
+    fig.suptitle("--prior auto today, 2-core CPU (seeds 0-2; hollow: 10000 steps, an older recipe, seed 0)", fontsize=10)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.savefig("docs/accuracy_steps.png", dpi=100)
