@@ -104,7 +104,9 @@ FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
 # ... and the forward-facing recipe (the reference; the long one too since session 42) densifies by absolute
 # gradients since session 29 (AbsGS; the compiled backward computes the statistic), which the other generators do
 # not: flower auto steps 1-1000 172.9 / 175.9 s without, 184.0 / 186.3 s with it (two pairs alternating on a quiet
-# machine, 2026-11-29; docs/speed.md, "Session 29").
+# machine, 2026-11-29; docs/speed.md, "Session 29"). At 3000 steps LLFF cells with it trained ~1.14x as long as
+# without (cells of two days, not a quiet pair; docs/sparse_techniques.md "Session 42"), so a long forward run may
+# take ~7 % more than stated until the machine's correction (timings log) learns it.
 FORWARD_ABSGRAD_FACTOR = (184.0 + 186.3) / (172.9 + 175.9)
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71

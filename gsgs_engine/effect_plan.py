@@ -127,8 +127,8 @@ AUTO_ORBIT_LONG_MEASURED = ("the binocular view at every step on an object orbit
 # It does not take the orbits' clone / split boundary: LLFF 3 views at 3000 steps, seeds 0-2, 20.81 -> 20.96 dB, but
 # unseen seeds 3-5 20.96 -> 20.93 (sessions 40-41, docs/sparse_techniques.md; level at 1000 steps too, session 38).
 # It densifies by AbsGS's absolute gradients, as the 1000-step recipe does (sessions 41-42): LLFF 3 views at 3000
-# steps, CPU, seeds 0-2 20.81 -> 21.24 dB (every cell higher, +0.30 to +0.61), unseen seeds 3-5 20.96 -> 21.16
-# (every cell higher, +0.10 to +0.27); seeds 0-5 20.88 -> 21.20 +- 0.06, SSIM 0.719 -> 0.726, LPIPS (VGG) 0.266 ->
+# steps, CPU, seeds 0-2 20.81 -> 21.24 dB (every cell higher, +0.29 to +0.61), unseen seeds 3-5 20.96 -> 21.16
+# (every cell higher, +0.10 to +0.28); seeds 0-5 20.88 -> 21.20 +- 0.06, SSIM 0.719 -> 0.726, LPIPS (VGG) 0.266 ->
 # 0.257, the same Gaussian count, ~15 % more training seconds a cell (docs/sparse_techniques.md, "Session 42").
 AUTO_FORWARD_LONG_TECHNIQUES = ("absgrad", "count_control", "dropout:guide=density", "binocular", "opacity_decay")
 AUTO_FORWARD_LONG_MEASURED = ("density-guided dropout and the binocular view at full size on a forward-facing rig "

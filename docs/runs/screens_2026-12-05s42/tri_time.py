@@ -1,18 +1,30 @@
-import sys, time
-t0 = time.perf_counter()
+"""The plan's triangulation of a protocol scene's training views alone, with its stages' seconds (session 42).
+
+    PYTHONPATH=TREE python tri_time.py /work/shared/data/blender_lego   # the 8 NeRF-synthetic protocol views, 400 px
+    PYTHONPATH=TREE python tri_time.py /work/shared/data/llff_flower    # the LLFF protocol's 3 views, full size
+
+TREE with `triangulation_options_scratch.diff` applied reads S42_AFF / S42_DSP / S42_OCT (SIFT's affine shapes,
+domain-size pooling, first octave at <= 400 px)."""
+import sys
+import tempfile
+import time
+
 from gsgs_engine.io.loader import load_scene
 from gsgs_engine.sfm import triangulate_with_known_poses
-print("imports", round(time.perf_counter() - t0, 2))
+
+BLENDER_IDS = ["r_2", "r_16", "r_26", "r_55", "r_73", "r_76", "r_86", "r_93"]  # the bench's lego cells' job.json
+
 if __name__ == "__main__":
-    import glob, json
-    spec = sys.argv[1]
-    t = time.perf_counter()
-    scene = load_scene(spec, train_ids=["r_2","r_16","r_26","r_55","r_73","r_76","r_86","r_93"], resolution_scale=0.5, background=[1.0,1.0,1.0])
-    print("load", round(time.perf_counter() - t, 2), len(scene.train))
-    views = scene.train
-    last = [time.perf_counter()]
-    def prog(stage, step, total, msg):
-        now = time.perf_counter(); print(f"  {now - t1:6.2f} s  {stage}: {msg[:100]}"); 
-    t1 = time.perf_counter()
-    tri = triangulate_with_known_poses(views, progress=prog, out_dir="/tmp/s42/tri_work")
-    print("triangulate", round(time.perf_counter() - t1, 2), len(tri.points) if hasattr(tri, 'points') else tri)
+    path = sys.argv[1]
+    if "llff" in path:
+        scene = load_scene(path, train_views=3, resolution_scale=1.0)
+    else:
+        scene = load_scene(path, train_ids=BLENDER_IDS, resolution_scale=0.5, background=[1.0, 1.0, 1.0])
+    start = time.perf_counter()
+
+    def progress(stage, step, total, message):
+        print(f"  {time.perf_counter() - start:6.2f} s  {stage}: {message[:100]}")
+
+    with tempfile.TemporaryDirectory() as work:
+        tri = triangulate_with_known_poses(scene.train, progress=progress, out_dir=work)
+    print(f"triangulate {time.perf_counter() - start:.2f} s, {len(tri.points)} points")
