@@ -26,6 +26,7 @@ import numpy as np
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
+from gsgs_engine.init import cache as init_cache
 from gsgs_engine.io.photos import PHOTO_EXTENSIONS, prepare_photos, scan_photo_folder
 from gsgs_engine import sfm_strategies
 from gsgs_engine.sfm_strategies import STRATEGIES
@@ -268,8 +269,19 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
                   "max_epipolar_error": float(max_epipolar_error),
                   "max_reprojection_error": float(max_reprojection_error),
                   "min_triangulation_angle": float(min_triangulation_angle), "max_ratio": float(max_ratio)}
-        raw = _run_in_child("triangulate", params, work / "colmap.log", TRIANGULATION_STAGES, progress,
-                            should_cancel)
+        # out_dir asks for the COLMAP files themselves: only a temporary folder's run is served from the cache
+        digest = _triangulation_key(params, [image_dir / e["name"] for e in entries]) if out_dir is None else None
+        raw = init_cache.load_json("triangulation", digest) if digest is not None else None
+        if raw is not None:
+            log.info("triangulation of %d known poses: reused (init cache %s)", len(pairs), digest[:12])
+            if progress is not None:
+                progress("triangulation", len(TRIANGULATION_STAGES) - 1, len(TRIANGULATION_STAGES),
+                         "reused the triangulation of these views from an earlier run (init cache)")
+        else:
+            raw = _run_in_child("triangulate", params, work / "colmap.log", TRIANGULATION_STAGES, progress,
+                                should_cancel)
+            if digest is not None:
+                init_cache.store_json("triangulation", digest, raw)
     finally:
         if out_dir is None:
             shutil.rmtree(work, ignore_errors=True)
@@ -282,6 +294,15 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
     if result.reason:
         log.warning("triangulation from %d known poses: %s", len(pairs), result.reason)
     return result
+
+
+def _triangulation_key(params: dict, image_files: list[Path]) -> str:
+    """The init cache's key of a triangulation: what the child reads (the PNGs as written, the cameras and
+    thresholds; not the temporary folder), this module's code and pycolmap's version."""
+    return init_cache.key("triangulation", {k: v for k, v in params.items() if k != "work"},
+                          [init_cache.key(f.read_bytes()) for f in image_files],
+                          init_cache.source_digest(__name__, sfm_strategies.__name__),
+                          init_cache.package_versions("pycolmap", "numpy"))
 
 
 def run_sfm_job(job) -> SfmResult:

@@ -36,6 +36,20 @@ def _private_timings_log(tmp_path_factory):
 
 
 @pytest.fixture(autouse=True, scope="session")
+def _no_init_cache():
+    # The initialisation's cache across jobs (gsgs_engine.init.cache) would let one test's triangulation or dense init
+    # answer another's (and skip a monkeypatched computation): off for the suite, child processes included; the cache's
+    # own tests point it at a folder of their own.
+    old = os.environ.get("GSGS_INIT_CACHE")
+    os.environ["GSGS_INIT_CACHE"] = "off"
+    yield
+    if old is None:
+        os.environ.pop("GSGS_INIT_CACHE", None)
+    else:
+        os.environ["GSGS_INIT_CACHE"] = old
+
+
+@pytest.fixture(autouse=True, scope="session")
 def _few_threads():
     # The CI machine has 2 cores; keep torch from oversubscribing when tests run.
     try:

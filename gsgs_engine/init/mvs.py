@@ -33,6 +33,7 @@ import torch.nn.functional as F
 
 from gsgs_engine import GsgsError
 from gsgs_engine.cameras import Camera
+from gsgs_engine.init import cache as init_cache
 from gsgs_engine.init.views import nearest_sources, working_view
 
 
@@ -331,6 +332,40 @@ def dense_points(train_views: list, sparse_points: np.ndarray | None = None, nea
         rgb_t = torch.from_numpy(rgb)
         gray = rgb_t @ torch.tensor([0.299, 0.587, 0.114])
         views.append(_WorkView(cam, gray, rgb_t, torch.from_numpy(mask), lo, hi))
+    # the same working views, settings and code as an earlier run: its points (gsgs_engine.init.cache); the optical-flow
+    # matches read the full-size views, so a run with them is always computed
+    digest = _cache_key(views, cfg, seed) if cfg.flow is None else None
+    hit = init_cache.load_arrays("mvs", digest) if digest is not None else None
+    if hit is not None:
+        arrays, meta = hit
+        stats = dict(meta["stats"], cached=True, computed_seconds=meta["stats"].get("seconds"),
+                     seconds=round(time.perf_counter() - t0, 2))
+        reason = f"{meta['reason']}; reused from the init cache (computed in {stats['computed_seconds']} s before)"
+        log(f"mvs: {meta['method']}: {len(arrays['points'])} points in {stats['seconds']:.1f} s ({reason}, "
+            f"{digest[:12]})")
+        return DenseInit(arrays["points"], arrays["colors"], meta["method"], reason, stats)
+    result = _sweep_and_fuse(views, train_views, cfg, seed, t0, log)
+    if digest is not None:
+        init_cache.store_arrays("mvs", digest, {"points": result.points, "colors": result.colors},
+                                {"method": result.method, "reason": result.reason, "stats": result.stats})
+    return result
+
+
+def _cache_key(views: list[_WorkView], cfg: MVSConfig, seed: int) -> str:
+    """The init cache's key of a dense initialisation: the working views as the sweep reads them (cameras, pixels,
+    masks, depth ranges), the settings, the seed, the thread count (a sum's order can follow it), the code and the
+    libraries' versions."""
+    parts = []
+    for v in views:
+        parts += [v.camera.to_dict(), v.rgb.numpy(), v.mask.numpy(), float(v.near), float(v.far)]
+    return init_cache.key("mvs", asdict(cfg), int(seed), torch.get_num_threads(), *parts,
+                          init_cache.source_digest(__name__, nearest_sources.__module__),
+                          init_cache.package_versions("torch", "numpy"))
+
+
+def _sweep_and_fuse(views: list[_WorkView], train_views: list, cfg: MVSConfig, seed: int, t0: float,
+                    log: Callable[[str], None]) -> DenseInit:
+    """dense_points' computation: the sweep and consistency check of every view, the fusion, the fallback."""
     generator = torch.Generator().manual_seed(int(seed))
     stats: dict = {"config": asdict(cfg), "views": []}
     pts_all, cols_all = [], []
