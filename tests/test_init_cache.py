@@ -125,3 +125,14 @@ def test_triangulation_is_reused_without_running_pycolmap_again(cache_dir, monke
     # a folder for the COLMAP files asks for them: computed
     sfm.triangulate_with_known_poses(views, out_dir=cache_dir.parent / "tri")
     assert runs == ["triangulate", "triangulate"] and (cache_dir.parent / "tri" / "database.db").is_file()
+
+
+def test_a_value_that_cannot_be_stored_is_skipped_not_raised(cache_dir, caplog):
+    with caplog.at_level("WARNING", logger="gsgs.init.cache"):
+        init_cache.store_json("triangulation", "odd", {"points": np.zeros((2, 3), np.float32), "x": object()})
+    assert "not stored" in caplog.text and not (cache_dir / "triangulation" / "odd.json").exists()
+    init_cache.store_json("triangulation", "arrays", {"points": np.arange(6, dtype=np.float32).reshape(2, 3) / 3,
+                                                      "n": np.int64(2)})
+    back = init_cache.load_json("triangulation", "arrays")
+    assert np.array_equal(np.asarray(back["points"], np.float32), np.arange(6, dtype=np.float32).reshape(2, 3) / 3)
+    assert back["n"] == 2

@@ -137,8 +137,24 @@ def load_json(kind: str, digest: str):
         return None
 
 
+def _plain(o):
+    """json.dumps' fallback: numpy arrays as lists, numpy scalars as numbers (float32 values round-trip exactly)."""
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"{type(o).__name__} is not stored in the init cache")
+
+
 def store_json(kind: str, digest: str, value) -> None:
-    _write(kind, digest, ".json", json.dumps(value).encode())
+    """Store `value` (JSON with numpy arrays and scalars in it). A value that cannot be written is not stored: the
+    cache never stops the job it serves."""
+    try:
+        data = json.dumps(value, default=_plain).encode()
+    except (TypeError, ValueError) as exc:
+        log.warning("init cache: %s entry not stored (%s)", kind, exc)
+        return
+    _write(kind, digest, ".json", data)
 
 
 def load_arrays(kind: str, digest: str) -> tuple[dict[str, np.ndarray], dict] | None:
@@ -158,6 +174,10 @@ def load_arrays(kind: str, digest: str) -> tuple[dict[str, np.ndarray], dict] | 
 
 def store_arrays(kind: str, digest: str, arrays: dict[str, np.ndarray], meta: dict) -> None:
     buf = io.BytesIO()
-    text = json.dumps(meta, default=lambda o: o.item() if hasattr(o, "item") else str(o))  # numpy scalars as numbers
-    np.savez(buf, meta=np.frombuffer(text.encode(), dtype=np.uint8), **arrays)
+    try:
+        text = json.dumps(meta, default=_plain)
+        np.savez(buf, meta=np.frombuffer(text.encode(), dtype=np.uint8), **arrays)
+    except (TypeError, ValueError) as exc:
+        log.warning("init cache: %s entry not stored (%s)", kind, exc)
+        return
     _write(kind, digest, ".npz", buf.getvalue())
