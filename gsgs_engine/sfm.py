@@ -298,8 +298,9 @@ def triangulate_with_known_poses(views, out_dir: str | os.PathLike | None = None
 
 def _triangulation_key(params: dict, image_files: list[Path]) -> str:
     """The init cache's key of a triangulation: what the child reads (the PNGs as written, the cameras and
-    thresholds; not the temporary folder), this module's code and pycolmap's version."""
-    return init_cache.key("triangulation", {k: v for k, v in params.items() if k != "work"},
+    thresholds; not the temporary folder), the processor count (pycolmap's threads), this module's code and
+    pycolmap's version."""
+    return init_cache.key("triangulation", {k: v for k, v in params.items() if k != "work"}, os.cpu_count(),
                           [init_cache.key(f.read_bytes()) for f in image_files],
                           init_cache.source_digest(__name__, sfm_strategies.__name__),
                           init_cache.package_versions("pycolmap", "numpy"))

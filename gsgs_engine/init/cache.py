@@ -97,11 +97,14 @@ def _read(kind: str, digest: str, suffix: str) -> bytes | None:
         return None
     try:
         data = path.read_bytes()
-        os.utime(path)  # the newest entries are the ones kept
-        return data
     except OSError as exc:
         log.warning("init cache: cannot read %s (%s); computing it again", path, exc)
         return None
+    try:
+        os.utime(path)  # the most recently used entries are the ones kept
+    except OSError:
+        pass  # a read-only cache still serves its entries
+    return data
 
 
 def _write(kind: str, digest: str, suffix: str, data: bytes) -> None:
