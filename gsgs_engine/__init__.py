@@ -6,6 +6,7 @@ runs in a separate process started by the add-on or the `gsgs` command line.
 """
 
 import os
+from pathlib import Path
 
 __version__ = "0.1.0"
 
@@ -15,6 +16,12 @@ __version__ = "0.1.0"
 # took 1.5 s with spinning workers and 0.15 s with passive ones (2 threads each); on an idle
 # machine the two are within noise. A user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def user_cache_dir(name: str) -> Path:
+    """$XDG_CACHE_HOME/gsgs/NAME, else ~/.cache/gsgs/NAME: where gsgs keeps what it can make again (the compiled
+    kernel, LPIPS weights, the init cache)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")) / "gsgs" / name
 
 
 class GsgsError(Exception):

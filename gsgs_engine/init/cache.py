@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gsgs_engine import user_cache_dir
+
 log = logging.getLogger("gsgs.init.cache")
 
 CACHE_ENV = "GSGS_INIT_CACHE"
@@ -42,8 +44,7 @@ def cache_root() -> Path | None:
         return None
     if setting:
         return Path(setting).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "gsgs" / "init"
+    return user_cache_dir("init")
 
 
 @functools.lru_cache(maxsize=None)

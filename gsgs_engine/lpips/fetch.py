@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gsgs_engine import GsgsError
+from gsgs_engine import GsgsError, user_cache_dir
 from gsgs_engine.lpips.networks import CHANNELS, LPIPS, conv_indices
 from gsgs_engine.lpips.safe_pickle import flatten, load_numpy_pickle
 
@@ -45,8 +45,7 @@ def cache_dir() -> Path:
     explicit = os.environ.get("GSGS_LPIPS_DIR")
     if explicit:
         return Path(explicit).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "gsgs" / "lpips"
+    return user_cache_dir("lpips")
 
 
 def weights_file(net: str, cache: Path | None = None) -> Path:

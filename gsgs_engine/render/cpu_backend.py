@@ -21,7 +21,7 @@ import threading
 import time
 from pathlib import Path
 
-from gsgs_engine import GsgsError
+from gsgs_engine import GsgsError, user_cache_dir
 
 CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = ("rasterize_cpu.cpp", "project_cpu.cpp", "ssim_cpu.cpp", "binocular_cpu.cpp")
@@ -68,8 +68,7 @@ def build_dir() -> Path:
     if root:
         base = Path(root).expanduser()
     else:
-        cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-        base = Path(cache) / "gsgs" / "torch_extensions"
+        base = user_cache_dir("torch_extensions")
     return base / _source_hash()
 
 
