@@ -108,3 +108,33 @@ def test_switched_on_by_name_with_options():
     assert isinstance(tech, CoRegularisation) and tech.weight == 0.5 and tech.prune_every == 250
     with pytest.raises(GsgsError, match="no option"):
         parse_techniques("coregularisation:log=1")
+
+
+def _run_named(tmp_path, iters, spec, until=None, resume=False):
+    from gsgs_engine.train.techniques.catalogue import make_techniques, parse_techniques
+
+    trainer = make_trainer(tmp_path=tmp_path, iters=iters, checkpoint_every=10, seed=3)
+    trainer.setup(resume=resume)
+    for technique in make_techniques(parse_techniques(spec)):
+        trainer.add_technique(technique)
+    trainer.train(until=until)
+    return trainer, trainer.technique("coregularisation")
+
+
+def test_the_partner_trains_with_the_runs_other_techniques_and_resumes_with_them(tmp_path):
+    spec = "count_control,dropout,opacity_decay,coregularisation:start_fraction=0.25:prune_every=10"
+    whole, tech = _run_named(tmp_path / "a", 30, spec)
+    names = [t.name for t in tech.partner.techniques]
+    assert names == ["count_control", "dropout", "opacity_decay", "coregularisation_mirror"]
+    assert all(t is not p for t in whole.techniques for p in tech.partner.techniques)  # its own instances
+    # the partner's settings are its own copy: its techniques adjust them (count_control lowers the densifier's
+    # max_gaussians at install) without touching the main field's
+    assert tech.partner.config.densify_config is not whole.config.densify_config
+    assert tech.partner.config.densify_config.max_gaussians == whole.config.densify_config.max_gaussians
+    _run_named(tmp_path / "b", 30, spec, until=20)
+    resumed, rtech = _run_named(tmp_path / "b", 30, spec, resume=True)
+    assert rtech.partner.step == 30
+    for name, p in whole.model.params.items():
+        assert torch.equal(resumed.model.params[name].detach(), p.detach()), name
+    for name, p in tech.partner.model.params.items():
+        assert torch.equal(rtech.partner.model.params[name].detach(), p.detach()), name

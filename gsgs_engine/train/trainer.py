@@ -369,6 +369,13 @@ class Trainer:
         return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
     # -- techniques ---------------------------------------------------------------------------------
+    def config_as_set_up(self) -> TrainConfig:
+        """A copy of the settings as the run was asked for, before any technique adjusted them (a partner field
+        trained beside this one starts from these, with its own techniques)."""
+        if self._config_as_set_up is None:
+            raise GsgsError("the settings as set up exist after Trainer.setup()")
+        return TrainConfig.from_dict(self._config_as_set_up.to_dict())
+
     def add_technique(self, technique: Technique) -> Technique:
         """Let `technique` take part in training (see gsgs_engine.train.technique); call after setup()."""
         if self.model is None:

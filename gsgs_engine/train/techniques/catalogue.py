@@ -89,8 +89,15 @@ def parse_techniques(spec, where: str = "--techniques") -> list[dict]:
 
 
 def make_techniques(parsed: list[dict]) -> list:
-    """The Technique objects of `parse_techniques`' result (constructor checks raise GsgsError)."""
-    return [TECHNIQUES[item["name"]][0](**item["options"]) for item in parsed]
+    """The Technique objects of `parse_techniques`' result (constructor checks raise GsgsError).
+
+    Co-regularisation's partner field gets its own instances of the other techniques named with it."""
+    made = [TECHNIQUES[item["name"]][0](**item["options"]) for item in parsed]
+    others = [item for item in parsed if item["name"] != "coregularisation"]
+    for technique in made:
+        if isinstance(technique, CoRegularisation):
+            technique.partner_techniques = lambda: make_techniques(others)
+    return made
 
 
 def techniques_help() -> str:

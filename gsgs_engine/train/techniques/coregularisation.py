@@ -11,9 +11,13 @@ them together:
 - co-pruning: every `prune_every` steps while densification runs, Gaussians of either field with
   no Gaussian of the other field near them are removed.
 
-Only the main field is exported. The partner doubles the cost of a step (measured in
-docs/sparse_techniques.md); its state is checkpointed in CHECKPOINTS/coregularisation/, so a
-resumed run continues both fields.
+The partner trains with the same other techniques as the main field (fresh instances of the same
+names and options, `partner_techniques`, set by the catalogue): a budgeted, dropout-regularised
+main field co-regularised with a plain partner would be pulled towards plain 3DGS's floaters. Only
+the main field has the prior loop's pseudo views (techniques/prior_loop.py is added after every
+technique). Only the main field is exported. The partner doubles the cost of a step (measured in
+docs/sparse_techniques.md); its state (its techniques' included) is checkpointed in
+CHECKPOINTS/coregularisation/, so a resumed run continues both fields.
 """
 
 from __future__ import annotations
@@ -117,6 +121,8 @@ class CoRegularisation(Technique):
         self.pool = []
         self.current_camera = None
         self.pruned = {"main": 0, "partner": 0}
+        #: makes the partner's own instances of the run's other techniques (catalogue.make_techniques sets it)
+        self.partner_techniques = None
 
     def install(self, trainer) -> None:
         from gsgs_engine.priors.poses import interpolated_pseudo_views
@@ -132,12 +138,18 @@ class CoRegularisation(Technique):
         if not self.pool:
             raise GsgsError("co-regularisation needs at least two training views to place pseudo views")
         ckpt_dir = None if trainer.checkpoint_dir is None else trainer.checkpoint_dir / self.name
-        config = replace(trainer.config, seed=trainer.config.seed + 1, checkpoint_every=0)
+        # its own copy of the settings as asked for: the main field's techniques adjust trainer.config's densify
+        # settings in place (absgrad's threshold, the budget), and the partner's own techniques do the same to it
+        config = replace(trainer.config_as_set_up(), seed=trainer.config.seed + 1, checkpoint_every=0)
         self.partner = Trainer(trainer.scene, config, checkpoint_dir=ckpt_dir, train_views=trainer.train_views)
         state = trainer.model.state_dict()
         state["params"] = {k: v.cpu() for k, v in state["params"].items()}  # the partner moves it to its device
         initial = type(trainer.model).from_state_dict(state)
-        self.partner.setup(initial_model=initial)
+        # a resumed main field (its step > 0) resumes the partner from its own checkpoint before the partner's
+        # techniques are added, as the main field's were: add_technique hands each its saved state
+        self.partner.setup(resume=trainer.step > 0 and ckpt_dir is not None, initial_model=initial)
+        for technique in (self.partner_techniques() if self.partner_techniques else []):
+            self.partner.add_technique(technique)
         self.partner.add_technique(_Mirror(self))
 
     def _start(self) -> int:
@@ -173,7 +185,6 @@ class CoRegularisation(Technique):
         step = state.get("partner_checkpoint_step")
         if step is None:
             return
-        self.partner.setup(resume=True)
         if self.partner.step != step:
             raise GsgsError(f"{self.partner.checkpoint_dir}: the partner field's checkpoint is at step "
                             f"{self.partner.step}, the run's at {step}; resume needs both (or start again)")
