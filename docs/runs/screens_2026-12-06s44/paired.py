@@ -1,4 +1,5 @@
-"""Session 44's LLFF pairs: the recipe (base) and the 5-pixel window + 192 planes sweep (w5d192), seeds 0-2.
+"""Session 44's LLFF pairs, seeds 0-2: the recipe (base), the 5-pixel window + 192 planes sweep (w5d192) and the
+binocular smoothness at 0.1 (sw01).
 usage: python paired.py [RUNS]  (RUNS: the bench's work folder, default /tmp/s44/runs; else the copies here)"""
 import glob, json, os, statistics as st, sys
 
@@ -13,7 +14,7 @@ def cell(scene, tag, seed):
     return json.load(open(f))
 
 
-for tag in ("base", "w5d192"):
+for tag in ("base", "w5d192", "sw01"):
     means = []
     for k in range(3):
         ms = [cell(s, tag, k) for s in ("llff_flower", "llff_horns")]
