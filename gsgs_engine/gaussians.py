@@ -63,24 +63,41 @@ def knn_mean_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048, leaf: 
     n = points.shape[0]
     if n < 2:
         return torch.ones(n, dtype=points.dtype, device=points.device)
+    return nearest_neighbours(points, k, chunk, leaf)[0].mean(dim=1)
+
+
+def nearest_neighbours(points: torch.Tensor, k: int = 3, chunk: int = 2048,
+                       leaf: int = 128) -> tuple[torch.Tensor, torch.Tensor]:
+    """The k nearest other points of each point: (squared distances [N, k] ascending, their indices [N, k]).
+
+    k is capped at N - 1. The search is `knn_mean_sq_dist`'s (exact). Each row drops its nearest hit, which is
+    the point itself unless a duplicate lies at distance 0 too (then the duplicate may stand in for it)."""
+    n = points.shape[0]
     k = min(k, n - 1)
+    if k < 1:
+        return (torch.zeros(n, 0, dtype=points.dtype, device=points.device),
+                torch.zeros(n, 0, dtype=torch.int64, device=points.device))
     if n > 4 * leaf:
         return _knn_by_leaves(points, k, leaf)
-    out = torch.empty(n, dtype=points.dtype, device=points.device)
+    vals = torch.empty(n, k, dtype=points.dtype, device=points.device)
+    idx = torch.empty(n, k, dtype=torch.int64, device=points.device)
     for start in range(0, n, chunk):
         block = points[start:start + chunk]
         d2 = torch.cdist(block, points).square()
         # the point itself is at distance 0: take k + 1 smallest and drop the first
-        vals = torch.topk(d2, k + 1, dim=1, largest=False).values[:, 1:]
-        out[start:start + chunk] = vals.mean(dim=1)
-    return out
+        top = torch.topk(d2, k + 1, dim=1, largest=False)
+        vals[start:start + chunk], idx[start:start + chunk] = top.values[:, 1:], top.indices[:, 1:]
+    return vals, idx
 
 
-def _knn_by_leaves(points: torch.Tensor, k: int, leaf: int, quantile: float = 0.9) -> torch.Tensor:
+def _knn_by_leaves(points: torch.Tensor, k: int, leaf: int,
+                   quantile: float = 0.9) -> tuple[torch.Tensor, torch.Tensor]:
     leaves = kd_leaves(points, leaf)
     lo = torch.stack([points[i].min(0).values for i in leaves])
     hi = torch.stack([points[i].max(0).values for i in leaves])
-    out = torch.empty(points.shape[0], dtype=points.dtype, device=points.device)
+    n = points.shape[0]
+    out = torch.zeros(n, k, dtype=points.dtype, device=points.device)
+    out_idx = torch.zeros(n, k, dtype=torch.int64, device=points.device)
     unsure = []
     for j, idx in enumerate(leaves):
         own = points[idx]
@@ -91,17 +108,18 @@ def _knn_by_leaves(points: torch.Tensor, k: int, leaf: int, quantile: float = 0.
         cand = torch.cat([leaves[i] for i in torch.nonzero(gap.square().sum(1) <= bound).flatten().tolist()])
         # every point within sqrt(bound) of this leaf is a candidate: a k-th distance found within the
         # bound is exact; the rest (isolated points) are searched against all points below
-        vals = torch.topk(torch.cdist(own, points[cand]).square(), min(k + 1, len(cand)), dim=1,
-                          largest=False).values
+        top = torch.topk(torch.cdist(own, points[cand]).square(), min(k + 1, len(cand)), dim=1, largest=False)
+        vals = top.values
         ok = (vals.shape[1] == k + 1) & (vals[:, -1] <= bound)
-        out[idx] = vals[:, 1:].mean(dim=1) if vals.shape[1] == k + 1 else 0.0
+        if vals.shape[1] == k + 1:
+            out[idx], out_idx[idx] = vals[:, 1:], cand[top.indices[:, 1:]]
         unsure.append(idx[~ok])
     rest = torch.cat(unsure)
     for start in range(0, len(rest), 2048):
         block = rest[start:start + 2048]
-        d2 = torch.cdist(points[block], points).square()
-        out[block] = torch.topk(d2, k + 1, dim=1, largest=False).values[:, 1:].mean(dim=1)
-    return out
+        top = torch.topk(torch.cdist(points[block], points).square(), k + 1, dim=1, largest=False)
+        out[block], out_idx[block] = top.values[:, 1:], top.indices[:, 1:]
+    return out, out_idx
 
 
 @dataclass

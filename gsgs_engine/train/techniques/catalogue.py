@@ -22,6 +22,7 @@ from gsgs_engine.train.techniques.dropout import GaussianDropout
 from gsgs_engine.train.techniques.exposure import ExposureCompensation
 from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
 from gsgs_engine.train.techniques.smoothing import SmoothingFilter
+from gsgs_engine.train.techniques.unpool import ProximityUnpooling
 
 #: name -> (class, one line for --help); the order is the order techniques are added in
 TECHNIQUES = {
@@ -30,6 +31,9 @@ TECHNIQUES = {
     "clone_split": (CloneSplitBoundary, "densification clones Gaussians up to boundary=0.005 x the scene extent and "
                                         "splits larger ones (3DGS: 0.01)"),
     "count_control": (GaussianBudget, "Gaussian budget tied to the training pixels (ceiling + threshold floor)"),
+    "unpool": (ProximityUnpooling, "proximity-guided unpooling (FSGS): midpoints from Gaussians whose neighbours lie "
+                                   "far (ratio=3 x the median gap, as an angle from the nearest camera) to each of "
+                                   "their k=3 nearest, every=100 steps until=0.5 of the run, within the budget"),
     "smoothing": (SmoothingFilter, "Mip-Splatting's 3D smoothing filter: no Gaussian finer than its finest training "
                                    "pixel (variance=0.2 pixels^2), baked into the model at the last step"),
     "dropout": (GaussianDropout, "progressive Gaussian dropout, training renders only (DropGaussian; "
