@@ -150,7 +150,7 @@ def config_from_settings(settings: dict) -> TrainConfig:
     settings = settings_with_preset(check_settings(settings))
     allowed = {"iters", "sh_degree", "backend", "seed", "checkpoint_every", "lambda_dssim", "random_background",
                "init", "random_init_points", "mvs_max_side", "mvs_flow", "densify", "max_gaussians", "prior", "prior_settings",
-               "coarse_fraction", "coarse_scale", "position_lr_scale",
+               "coarse_fraction", "coarse_scale", "position_lr_scale", "attribute_lr_scale",
                "resolution_scale", "max_side", "background", "preset", "effects", "techniques"}
     unknown = sorted(set(settings) - allowed)
     if unknown:
@@ -161,8 +161,9 @@ def config_from_settings(settings: dict) -> TrainConfig:
                 "coarse_scale"):
         if key in settings and settings[key] not in (None, "auto"):
             setattr(cfg, key, type(getattr(cfg, key))(settings[key]))
-    if settings.get("position_lr_scale") not in (None, "auto"):
-        cfg.position_lr_scale = float(settings["position_lr_scale"])
+    for key in ("position_lr_scale", "attribute_lr_scale"):
+        if settings.get(key) not in (None, "auto"):
+            setattr(cfg, key, float(settings[key]))
     if "max_gaussians" in settings:
         cfg.densify_config.max_gaussians = int(settings["max_gaussians"])
     validate_config(cfg)

@@ -69,6 +69,8 @@ TRAIN = {
     "coarse_scale": Rule("float", 0, 1, lo_open=True, flag="--coarse-scale"),
     "position_lr_scale": Rule("float", 0, 100, lo_open=True, flag="--position-lr-scale", also=("auto",),
                               allow_none=True),
+    "attribute_lr_scale": Rule("float", 0, 100, lo_open=True, flag="--attribute-lr-scale", also=("auto",),
+                               allow_none=True),
     "max_gaussians": Rule("int", 1, 100_000_000),
     "prior": Rule("str", allow_none=True, flag="--prior"),
     "resolution_scale": Rule("float", 0, 4, lo_open=True, flag="--resolution-scale"),

@@ -225,6 +225,8 @@ def test_integral_settings_are_converted(tmp_path):
     assert config_from_settings({"position_lr_scale": 2.5}).position_lr_scale == 2.5
     assert config_from_settings({"position_lr_scale": "auto"}).position_lr_scale is None  # the plan's choice
     assert config_from_settings({}).position_lr_scale is None
+    assert config_from_settings({"attribute_lr_scale": 3}).attribute_lr_scale == 3.0
+    assert config_from_settings({"attribute_lr_scale": "auto"}).attribute_lr_scale is None
 
 
 CLI_CASES = [
@@ -236,6 +238,7 @@ CLI_CASES = [
     (["--warmup-fraction", "5"], "--warmup-fraction must be at most 1"),
     (["--lambda-reg", "inf"], "--lambda-reg must be a finite number"),
     (["--position-lr-scale", "-2"], "--position-lr-scale must be greater than 0"),
+    (["--attribute-lr-scale", "0"], "--attribute-lr-scale must be greater than 0"),
 ]
 
 

@@ -558,3 +558,25 @@ def test_position_learning_rate_of_the_recipe_and_as_asked():
     assert kept["position_lr"].value == 1.0 and kept["position_lr"].enabled is False and kept["position_lr"].source == "user"
     with pytest.raises(GsgsError, match="--position-lr-scale"):
         parse_overrides("position_lr=3")
+
+
+def test_attribute_learning_rates_of_the_orbit_recipe_and_as_asked():
+    from gsgs_engine.effect_plan import ATTRIBUTE_LR_SCALE, AUTO_LONG_STEPS
+
+    orbit = plan(make_scene(n_train=4))  # a short sparse object orbit under --prior auto: the recipe's multiple
+    assert orbit["attribute_lr"].enabled and orbit["attribute_lr"].value == ATTRIBUTE_LR_SCALE > 1
+    assert "orbit" in orbit["attribute_lr"].reason and "attribute_lr" in orbit.format()
+    assert apply_effect_plan(orbit, TrainConfig(), AUTO)[0].attribute_lr_scale == ATTRIBUTE_LR_SCALE
+    # measured on short orbits only: forward rigs, videos, long runs, plain 3DGS and dense views keep 3DGS's rates
+    for other in (plan(make_scene(n_train=4, forward=True)), plan(make_scene(times=[0.0, 0.3, 0.6, 1.0])),
+                  plan(make_scene(n_train=4), iters=AUTO_LONG_STEPS),
+                  plan(make_scene(n_train=4), replace(AUTO, prior="none")), plan(make_scene(n_train=24))):
+        assert other["attribute_lr"].enabled is False and other["attribute_lr"].value == 1.0
+        assert apply_effect_plan(other, TrainConfig(), AUTO)[0].attribute_lr_scale == 1.0
+    assert plan(make_scene(n_train=4), iters=AUTO_LONG_STEPS - 1)["attribute_lr"].value == ATTRIBUTE_LR_SCALE
+    asked = plan(make_scene(n_train=4, forward=True), attribute_lr_scale=2.0)  # the user's multiple wins everywhere
+    assert asked["attribute_lr"].value == 2.0 and asked["attribute_lr"].source == "user"
+    kept = plan(make_scene(n_train=4), attribute_lr_scale=1.0)
+    assert kept["attribute_lr"].value == 1.0 and kept["attribute_lr"].enabled is False
+    with pytest.raises(GsgsError, match="--attribute-lr-scale"):
+        parse_overrides("attribute_lr=3")

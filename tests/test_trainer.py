@@ -463,6 +463,26 @@ def test_position_lr_scale_multiplies_the_means_rate_at_every_step_and_one_is_3d
             validate_config(TrainConfig(position_lr_scale=bad))
 
 
+def test_attribute_lr_scale_multiplies_colour_scale_and_rotation_rates_only():
+    from gsgs_engine import GsgsError
+    from gsgs_engine.train.trainer import TrainConfig, validate_config
+
+    rates = {}
+    for scale in (None, 1.0, 3.0):
+        trainer = make_trainer(iters=2, densify=False, attribute_lr_scale=scale)
+        trainer.setup()
+        rates[scale] = {g["name"]: g["lr"] for g in trainer.optimizer.param_groups}
+    assert rates[None] == rates[1.0]  # unset is 3DGS's rates
+    for name in ("sh_dc", "sh_rest", "log_scales", "quats"):
+        assert rates[3.0][name] == pytest.approx(3.0 * rates[1.0][name], rel=1e-12)
+    for name in ("means", "opacity_logits"):  # positions have their own multiple; opacities stay 3DGS's
+        assert rates[3.0][name] == rates[1.0][name]
+    assert TrainConfig(attribute_lr_scale=3.0).lr == TrainConfig().lr  # the config's own rates are not changed
+    for bad in (0.0, -1.0, float("nan"), float("inf"), 101.0):
+        with pytest.raises(GsgsError, match="attribute-lr-scale"):
+            validate_config(TrainConfig(attribute_lr_scale=bad))
+
+
 def test_photometric_terms_weighting():
     from gsgs_engine.train.losses import photometric_terms, total_loss
 

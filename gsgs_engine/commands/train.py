@@ -64,6 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--position-lr-scale", type=float, default=None,
                         help="the Gaussians' position learning rate as a multiple of 3DGS's schedule (default: "
                              "the effect plan's; --prior auto raises it on object orbits and videos, else 1)")
+    parser.add_argument("--attribute-lr-scale", type=float, default=None,
+                        help="the colour, scale and rotation learning rates as one multiple of 3DGS's (default: the "
+                             "effect plan's; --prior auto raises them on sparse object orbits below 3000 steps, "
+                             "else 1)")
     parser.add_argument("--random-background", action="store_true",
                         help="a random background colour each step: RGBA scenes composite the target on the same "
                              "(alpha learned), RGB scenes keep the photo (every pixel learned opaque; "
@@ -124,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
                          backend=args.backend, seed=args.seed,
                          checkpoint_every=args.checkpoint_every, random_background=args.random_background,
                          init=args.init, coarse_fraction=args.coarse_fraction, coarse_scale=args.coarse_scale,
-                         position_lr_scale=args.position_lr_scale)
+                         position_lr_scale=args.position_lr_scale, attribute_lr_scale=args.attribute_lr_scale)
     if args.mvs_size is not None:
         config.mvs_max_side = args.mvs_size
     config.mvs_flow = args.mvs_flow

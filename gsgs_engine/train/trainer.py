@@ -12,7 +12,7 @@ from __future__ import annotations
 import signal
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -68,6 +68,10 @@ class TrainConfig:
     # the means' learning rate as a multiple of 3DGS's schedule (LearningRates.position_*, decayed over the run);
     # None: the effect plan's choice (gsgs_engine.effect_plan: the recipe of the rig), 1.0 without a plan
     position_lr_scale: float | None = None
+    # the colour (SH), scale and rotation learning rates as one multiple of 3DGS's (opacities and positions apart);
+    # None: the effect plan's choice (the object-orbit recipe's, gsgs_engine.effect_plan.ATTRIBUTE_LR_SCALE), 1.0
+    # without a plan
+    attribute_lr_scale: float | None = None
     # a textured sphere through the cameras behind the splats (gsgs_engine.train.background_sphere): its texture's
     # width in texels (height half), 0 = the constant background; the effect plan's "sphere" background
     background_sphere: int = 0
@@ -76,6 +80,13 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def attribute_rates(self) -> LearningRates:
+        """`lr` with the colour, scale and rotation rates times `attribute_lr_scale` (None: 1)."""
+        k = 1.0 if self.attribute_lr_scale is None else float(self.attribute_lr_scale)
+        lr = self.lr
+        return replace(lr, sh_dc=lr.sh_dc * k, sh_rest=lr.sh_rest * k, scaling=lr.scaling * k,
+                       rotation=lr.rotation * k)
 
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
@@ -356,7 +367,7 @@ class Trainer:
                                    cfg.lr.position_final * self.extent)
 
     def _make_optimizer(self) -> torch.optim.Optimizer:
-        lr, p = self.config.lr, self.model.params
+        lr, p = self.config.attribute_rates(), self.model.params
         groups = [
             {"params": [p["means"]], "lr": self._position_lr(0), "name": "means"},
             {"params": [p["sh_dc"]], "lr": lr.sh_dc, "name": "sh_dc"},
@@ -724,6 +735,9 @@ def validate_config(cfg: TrainConfig) -> None:
         raise GsgsError(f"--mvs-flow must be off, dis or deepflow (got {cfg.mvs_flow!r})")
     if cfg.position_lr_scale is not None and not (np.isfinite(cfg.position_lr_scale) and 0 < cfg.position_lr_scale <= 100):
         raise GsgsError(f"--position-lr-scale must be in (0, 100] (got {cfg.position_lr_scale}); 1 is 3DGS's schedule")
+    if cfg.attribute_lr_scale is not None and not (np.isfinite(cfg.attribute_lr_scale)
+                                                   and 0 < cfg.attribute_lr_scale <= 100):
+        raise GsgsError(f"--attribute-lr-scale must be in (0, 100] (got {cfg.attribute_lr_scale}); 1 is 3DGS's rates")
     if not (np.isfinite(cfg.novel_view_near) and cfg.novel_view_near > 0):
         raise GsgsError(f"novel_view_near must be a positive distance (got {cfg.novel_view_near})")
     from gsgs_engine.train.background_sphere import check_width
