@@ -11,7 +11,7 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.train.technique import StepContext
-from test_trainer import look_at, make_scene, make_trainer
+from test_trainer import Probe, look_at, make_scene, make_trainer
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -249,6 +249,30 @@ def test_decay_scales_opacities_and_no_reset_happens():
     assert trainer.opacity_resets == 0 and trainer.nan_steps_skipped == 0
     assert decay.steps_decayed == 121  # 120 steps plus the call above
     assert trainer.densify_log[-1]["step"] == 100  # densified to the end (3DGS's schedule stops at step 60)
+
+
+def test_decay_keeps_or_drops_the_white_backgrounds_first_reset():
+    from gsgs_engine import GsgsError
+    from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
+
+    resets = {}
+    for white_reset in (1, 0):
+        scene = make_scene()
+        scene.background = (1.0, 1.0, 1.0)  # white: 3DGS resets the opacities once, at the start of densification
+        trainer = make_trainer(scene, iters=100, densify=True)
+        trainer.setup()
+        decay = trainer.add_technique(OpacityDecay(white_reset=white_reset))
+        start = trainer.schedule.densify_from  # step 2 of 100
+        assert start > 1 and trainer.schedule.white_reset_step(start) is bool(white_reset)
+        assert not any(trainer.schedule.white_reset_step(s) for s in range(1, 101) if s != start)
+        seen = []
+        trainer.add_technique(Probe(after=lambda t, step: seen.append(float(t.model.opacities.detach().max()))))
+        trainer.train(until=start)
+        resets[white_reset] = seen[start - 1]  # the largest opacity right after the start of densification
+        assert ("keep the one" in decay.report()["opacity_reset"]) is bool(white_reset)
+    assert resets[1] <= 0.01 + 1e-6 < resets[0]  # the reset caps every opacity at 0.01; without it none is capped
+    with pytest.raises(GsgsError, match="white_reset"):
+        OpacityDecay(white_reset=2)
 
 
 # -- binocular --------------------------------------------------------------------------------

@@ -259,7 +259,7 @@ class SpacetimeTrainer(Trainer):
             info["step"] = step
             self.densify_log.append(info)
         white = bool(torch.all(self.background == 1.0))
-        if sched.is_opacity_reset_step(step) or (white and step == sched.densify_from and step > 1):
+        if sched.is_opacity_reset_step(step) or (white and sched.white_reset_step(step)):
             reset_opacity(self.model, self.optimizer)
         self.phase_seconds["densify"] += time.perf_counter() - t0
         return ok

@@ -34,6 +34,9 @@ class Schedule:
     densify_every: int
     opacity_reset_every: int
     sh_degree_every: int
+    # 3DGS's one-off opacity reset of white-background scenes at the start of densification (`white_reset_step`);
+    # the forward-facing recipe turns it off (opacity_decay:white_reset=0)
+    white_reset: bool = True
 
     @classmethod
     def scaled(cls, iters: int, densify_from: int = 500, densify_until: int = 15_000, densify_every: int = 100,
@@ -64,6 +67,10 @@ class Schedule:
         """
         return (self.densify_from < step <= self.densify_until and step < self.iters
                 and step % self.densify_every == 0)
+
+    def white_reset_step(self, step: int) -> bool:
+        """`step` is 3DGS's one-off opacity reset of a white-background scene (the start of densification)."""
+        return self.white_reset and step == self.densify_from and step > 1
 
     def is_opacity_reset_step(self, step: int) -> bool:
         """Reset only when a full reset period of densification follows (3DGS at 30k: 3000..12000).

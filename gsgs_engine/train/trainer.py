@@ -591,7 +591,7 @@ class Trainer:
                 reset_opacity(model, self.optimizer)
                 # 3DGS prunes by world size only after the first reset; a short run may have none
                 self.opacity_resets += 1
-            elif white and step == sched.densify_from and step > 1:
+            elif white and sched.white_reset_step(step):
                 reset_opacity(model, self.optimizer)
         self.phase_seconds["densify"] += time.perf_counter() - t3
 

@@ -9,8 +9,9 @@ periodic opacity reset, so `install` changes the trainer's schedule:
 
 - no periodic opacity reset (`opacity_reset_every` past the end of the run). The trainer's
   one-off reset of white-background scenes at the start of densification (3DGS's, step 17 of
-  1000) stays: it comes before the first decayed step, and the schedule has no switch for it
-  that would not also move the start of densification;
+  1000) stays by default: it comes before the first decayed step. `white_reset=0` drops it too
+  (`Schedule.white_reset`): the forward-facing recipe, whose RGB photos are white only behind the
+  splats, measured better without it (docs/sparse_techniques.md, "Session 45");
 - densification runs to the end of training (`densify_until = iters`; its last event is one interval
   before the last step, never on it: Schedule.is_densify_step);
 - the world-size prune: the trainer starts it after the first opacity reset, so with no reset
@@ -73,13 +74,17 @@ def step_presence(trainer) -> torch.Tensor | None:
 class OpacityDecay(Technique):
     name = "opacity_decay"
 
-    def __init__(self, factor: float = DEFAULT_FACTOR, start: int | None = None, presence: int = 0):
+    def __init__(self, factor: float = DEFAULT_FACTOR, start: int | None = None, presence: int = 0,
+                 white_reset: int = 1):
         if not 0.0 < factor < 1.0:
             raise GsgsError(f"opacity_decay: the factor must be in (0, 1) (got {factor})")
         if presence not in (0, 1):  # bool is an int: True / False pass too
             raise GsgsError(f"opacity_decay: presence is 0 or 1 (got {presence!r}; e.g. opacity_decay:presence=1)")
+        if white_reset not in (0, 1):
+            raise GsgsError(f"opacity_decay: white_reset is 0 or 1 (got {white_reset!r}; e.g. opacity_decay:white_reset=0)")
         self.factor = float(factor)
         self.presence = bool(presence)
+        self.white_reset = bool(white_reset)
         self.start = start  # first decayed step (None: the schedule's densify_from)
         self.steps_decayed = 0
 
@@ -90,6 +95,7 @@ class OpacityDecay(Technique):
         sched.densify_until = int(sched.iters)
         # is_opacity_reset_step(step) needs step % every == 0 for some step <= iters: never with every > iters.
         sched.opacity_reset_every = int(sched.iters) + 1
+        sched.white_reset = self.white_reset
 
     def after_step(self, trainer, step: int) -> None:
         if step < self.start:
@@ -113,5 +119,8 @@ class OpacityDecay(Technique):
         return {"factor": self.factor, "start_step": self.start, "steps_decayed": self.steps_decayed,
                 "presence": ("4D: factor ** (temporal opacity factor at the step's time) per Gaussian" if self.presence
                              else "off: every Gaussian by the factor each step"),
-                "opacity_reset": "off (periodic); white-background scenes keep the one at the start of densification", "densify_until": "end of training",
+                "opacity_reset": "off (periodic); " + ("white-background scenes keep the one at the start of "
+                                                       "densification" if self.white_reset else "and off at the "
+                                                       "start of densification (white_reset=0)"),
+                "densify_until": "end of training",
                 "world_size_prune": "off (the trainer starts it after the first reset; decay prunes by opacity)"}
