@@ -108,6 +108,15 @@ FORWARD_FULL_VIEW_FACTOR = 160.1 / 137.8
 # without (cells of two days, not a quiet pair; docs/sparse_techniques.md "Session 42"), so a long forward run may
 # take ~7 % more than stated until the machine's correction (timings log) learns it.
 FORWARD_ABSGRAD_FACTOR = (184.0 + 186.3) / (172.9 + 175.9)
+# ... and the orbit recipe below 3000 steps learns colour, scales and rotations at 3x 3DGS's rates since session 45
+# (effect_plan.ATTRIBUTE_LR_SCALE): larger footprints sooner, more Gaussians. Lego auto at 1000 steps, the build before
+# and after alternating twice on a quiet machine (2026-12-06, docs/sparse_techniques.md "Session 45"): 84.2 / 79.1 s
+# before, 90.3 / 116.5 s after (the VM's noise: the pairs' ratios are 1.07 and 1.47), so the sum's ratio.
+ORBIT_ATTRIBUTE_LR_FACTOR = (90.3 + 116.5) / (84.2 + 79.1)
+# ... and so does the forward-facing recipe below 3000 steps: LLFF cells of session 45 with them against session 44's
+# without, the same VM, one cell at a time (flower seeds 1-2, horns seeds 0-2; not a quiet pair: some of session 44's
+# cells ran beside other work, so the factor is if anything low): 1116.9 s against 826.7 s of training.
+FORWARD_ATTRIBUTE_LR_FACTOR = 1116.9 / 826.7
 MIN_PIXEL_FACTOR = 0.05  # below ~100x100 px per-step overheads dominate
 PIXEL_EXPONENT = 0.71
 TIMINGS_FILE = "train_timings.jsonl"
@@ -206,10 +215,14 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
         seconds = REFERENCES_CUDA[kind]
     if kind == "orbit" and iterations >= AUTO_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
+    elif kind == "orbit":  # ... and below it the raised colour, scale and rotation rates
+        seconds *= ORBIT_ATTRIBUTE_LR_FACTOR
     if kind == "forward" and generator != "auto":  # no absolute gradients
         seconds /= FORWARD_ABSGRAD_FACTOR
     if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... the view at full size
         seconds *= FORWARD_FULL_VIEW_FACTOR
+    elif kind == "forward" and generator == "auto":  # ... and below it the raised colour, scale and rotation rates
+        seconds *= FORWARD_ATTRIBUTE_LR_FACTOR
     w, h = train_size(width, height, resolution_scale, max_side)
     pixels = max(1.0, w * h)
     per_step = seconds / REFERENCE_ITERS * max(pixels / ref_pixels, MIN_PIXEL_FACTOR) ** PIXEL_EXPONENT

@@ -567,8 +567,10 @@ def test_attribute_learning_rates_of_the_orbit_recipe_and_as_asked():
     assert orbit["attribute_lr"].enabled and orbit["attribute_lr"].value == ATTRIBUTE_LR_SCALE > 1
     assert "orbit" in orbit["attribute_lr"].reason and "attribute_lr" in orbit.format()
     assert apply_effect_plan(orbit, TrainConfig(), AUTO)[0].attribute_lr_scale == ATTRIBUTE_LR_SCALE
-    # measured on short orbits only: forward rigs, videos, long runs, plain 3DGS and dense views keep 3DGS's rates
-    for other in (plan(make_scene(n_train=4, forward=True)), plan(make_scene(times=[0.0, 0.3, 0.6, 1.0])),
+    front = plan(make_scene(n_train=4, forward=True))  # a forward-facing rig: measured too
+    assert front["attribute_lr"].value == ATTRIBUTE_LR_SCALE and "forward-facing" in front["attribute_lr"].reason
+    # measured on short orbits and forward rigs only: videos, long runs, plain 3DGS and dense views keep 3DGS's rates
+    for other in (plan(make_scene(times=[0.0, 0.3, 0.6, 1.0])),
                   plan(make_scene(n_train=4), iters=AUTO_LONG_STEPS),
                   plan(make_scene(n_train=4), replace(AUTO, prior="none")), plan(make_scene(n_train=24))):
         assert other["attribute_lr"].enabled is False and other["attribute_lr"].value == 1.0
