@@ -35,7 +35,7 @@ and LPIPS better too), for about 2x the wait on the orbits and 3.3-4.4x on the f
 also beat plain 3DGS's 1000 (23.60 / 16.08 dB) in less time, so plain 3DGS is off the front on sparse captures and
 fast = 300 steps of the same recipe as balanced. What each preset measured (the add-on's tooltips read these lines;
 "a scene" = plan, initialisation, training and prior, not the evaluation; protocol cells, seeds 0-2):
-  fast  auto, 300 steps: NeRF-synthetic 8 views 25.26 dB in 20-37 s a scene (session 45: colour, scale and rotation rates x3 on orbits), LLFF 3 views 18.92 dB in 50-63 s (2-core CPU; plain 3DGS, session 24: 19.86 / 16.13 dB in 16-29 s)
+  fast  auto, 300 steps: NeRF-synthetic 8 views 25.26 dB in 20-37 s a scene (session 45: colour, scale and rotation rates x3), LLFF 3 views 20.11 dB on seed 0 (18.97 before; session 45's VM) in 70-85 s (2-core CPU; plain 3DGS, session 24: 19.86 / 16.13 dB in 16-29 s)
   balanced  auto, 1000 steps: NeRF-synthetic 8 views 27.26 dB in 83-104 s a scene (session 45's VM), LLFF 3 views 20.85 dB in 212-259 s (2-core CPU, session 45's VM)
   best  auto, 3000 steps: NeRF-synthetic 8 views 27.63 dB in 170-212 s a scene (2-core CPU); LLFF 3 views 21.24 dB, 21.20 over seeds 0-5, in 473-547 s of training a scene (2-core CPU)
 
