@@ -35,7 +35,7 @@ class Schedule:
     opacity_reset_every: int
     sh_degree_every: int
     # 3DGS's one-off opacity reset of white-background scenes at the start of densification (`white_reset_step`);
-    # the forward-facing recipe turns it off (opacity_decay:white_reset=0)
+    # opacity_decay:white_reset=0 turns it off (in no recipe: measured level on LLFF, session 45)
     white_reset: bool = True
 
     @classmethod

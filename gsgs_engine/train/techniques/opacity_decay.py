@@ -10,8 +10,8 @@ periodic opacity reset, so `install` changes the trainer's schedule:
 - no periodic opacity reset (`opacity_reset_every` past the end of the run). The trainer's
   one-off reset of white-background scenes at the start of densification (3DGS's, step 17 of
   1000) stays by default: it comes before the first decayed step. `white_reset=0` drops it too
-  (`Schedule.white_reset`): the forward-facing recipe, whose RGB photos are white only behind the
-  splats, measured better without it (docs/sparse_techniques.md, "Session 45");
+  (`Schedule.white_reset`); measured level without it on the forward-facing recipe (LLFF seeds 0-1,
+  20.67 -> 20.68 dB; docs/sparse_techniques.md, "Session 45"), so no recipe drops it;
 - densification runs to the end of training (`densify_until = iters`; its last event is one interval
   before the last step, never on it: Schedule.is_densify_step);
 - the world-size prune: the trainer starts it after the first opacity reset, so with no reset
