@@ -64,6 +64,7 @@ ABLATION: dict[str, dict] = {
     "dense + absgrad": {"prior": "none", "init": "mvs", "techniques": ["absgrad"]},
     "dense + clone_split": {"prior": "none", "init": "mvs", "techniques": ["clone_split"]},
     "dense + unpool": {"prior": "none", "init": "mvs", "techniques": ["unpool"]},
+    "dense + distortion": {"prior": "none", "init": "mvs", "techniques": ["distortion"]},
     "dense + depth regulariser": {"prior": "depth", "init": "mvs", "prior_settings": {"depth_source": "sparse"}},
     "auto": VARIANTS["auto"],
 }

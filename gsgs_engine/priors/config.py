@@ -154,8 +154,8 @@ def add_prior_arguments(parser) -> None:
     g.add_argument("--device", default="auto", help="device of the diffusion prior: auto | cpu | cuda")
     parser.add_argument("--techniques", default=None,
                         help="weights-free sparse-view techniques, comma-separated: absgrad, clone_split, "
-                             "count_control, unpool, smoothing, dropout, binocular, opacity_decay, coregularisation, "
-                             "exposure "
+                             "count_control, unpool, smoothing, dropout, binocular, distortion, opacity_decay, "
+                             "coregularisation, exposure "
                              "(options as NAME:KEY=VALUE), or none; "
                              "default: chosen by the effect plan (--prior auto on sparse views: the measured "
                              "recipe); see gsgs_engine.train.techniques.catalogue")

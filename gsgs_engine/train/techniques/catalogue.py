@@ -18,6 +18,7 @@ from gsgs_engine.train.techniques.binocular import BinocularConsistency
 from gsgs_engine.train.techniques.clone_split import CloneSplitBoundary
 from gsgs_engine.train.techniques.coregularisation import CoRegularisation
 from gsgs_engine.train.techniques.count_control import GaussianBudget
+from gsgs_engine.train.techniques.distortion import DepthDistortion
 from gsgs_engine.train.techniques.dropout import GaussianDropout
 from gsgs_engine.train.techniques.exposure import ExposureCompensation
 from gsgs_engine.train.techniques.opacity_decay import OpacityDecay
@@ -41,6 +42,9 @@ TECHNIQUES = {
                                  "guide=anchor drops whole neighbourhoods, after DropAnSH-GS; sh_rate=P drops "
                                  "SH bands from the top, DropAnSH-GS's SH dropout)"),
     "binocular": (BinocularConsistency, "shifted-camera disparity-warp self-consistency (Binocular3DGS)"),
+    "distortion": (DepthDistortion, "depth distortion (Mip-NeRF 360, 2DGS): the variance of each training ray's "
+                                    "depth under its blend weights, weight=0.1 x, from start_fraction=0.2 of the run, "
+                                    "rendered at scale=0.5"),
     "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
     "coregularisation": (CoRegularisation, "a second field trained alongside, co-regularised at pseudo views and "
                                            "co-pruned (CoR-GS; about 2x the time; static scenes)"),
