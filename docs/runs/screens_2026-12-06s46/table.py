@@ -56,3 +56,8 @@ if __name__ == "__main__":
     pair("fastattr3", "fastbase", (0, 1, 2))
     print("L3kattr3 against L3kbase (3000 steps)")
     pair("L3kattr3", "L3kbase", (0,))
+    orbits = ("blender_lego", "blender_chair")
+    print("odist0.1 against attr3 (the orbit recipe, 1000 steps)")
+    pair("odist0.1", "attr3", (0,), orbits)
+    print("odist1.0 against attr3 (the orbit recipe, 1000 steps)")
+    pair("odist1.0", "attr3", (0, 1, 2), orbits)

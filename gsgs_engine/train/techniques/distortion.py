@@ -31,7 +31,7 @@ import torch
 from gsgs_engine import GsgsError
 from gsgs_engine.train.technique import StepContext, Technique
 
-DEFAULT_WEIGHT = 0.1
+DEFAULT_WEIGHT = 1.0  # the orbit recipe's (docs/sparse_techniques.md, "Session 46")
 DEFAULT_START_FRACTION = 0.2
 DEFAULT_SCALE = 0.5
 DEFAULT_MIN_ALPHA = 0.5
