@@ -427,6 +427,15 @@ class Trainer:
         """A render with the run's background sphere behind it (as rendered: over the constant `background`)."""
         return out if self.bg_sphere is None else self.bg_sphere.composite(out, camera, background)
 
+    def training_inputs(self, ctx: StepContext | None, camera: Camera) -> dict:
+        """The rasteriser's inputs of a supervised render of this step: `gaussians_for(camera)` rewritten by the
+        techniques' `render_inputs` hooks (none without a step context)."""
+        inputs = self.gaussians_for(camera)
+        if ctx is not None:
+            for t in self.techniques:
+                inputs = t.render_inputs(ctx, inputs)
+        return inputs
+
     def render_for_training(self, ctx: StepContext | None, camera: Camera, background: torch.Tensor | None = None,
                             absgrad: bool | None = None):
         """A supervised render of this step: the techniques' `render_inputs` hooks may rewrite its inputs.
@@ -435,10 +444,7 @@ class Trainer:
         renders that may feed densification; a technique's render that never does passes False)."""
         from gsgs_engine.render import render
 
-        inputs = self.gaussians_for(camera)
-        if ctx is not None:
-            for t in self.techniques:
-                inputs = t.render_inputs(ctx, inputs)
+        inputs = self.training_inputs(ctx, camera)
         bg = self.background if background is None else background
         out = render(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["sh"], camera,
                      sh_degree=inputs["sh_degree"], background=bg,

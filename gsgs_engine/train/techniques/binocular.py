@@ -160,16 +160,23 @@ def rig_baseline(camera_centers) -> float | None:
     return float(d.min(axis=1).mean())
 
 
-def scene_depth(points, camera_centers) -> float:
-    """Median distance from `points` to their nearest camera centre (the scene's depth scale)."""
+def nearest_camera_distances(points, camera_centers, who: str) -> np.ndarray:
+    """Distance from each finite point to its nearest camera centre (at most 20k points, evenly sampled).
+
+    `who` names the technique in the error raised when no point is finite."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
     centers = np.asarray(camera_centers, dtype=np.float64).reshape(-1, 3)
     if len(pts) == 0:
-        raise GsgsError("binocular: the model has no finite Gaussian positions to measure the scene depth from")
+        raise GsgsError(f"{who}: the model has no finite Gaussian positions to measure the scene depth from")
     if len(pts) > 20000:
         pts = pts[np.linspace(0, len(pts) - 1, 20000).astype(int)]
-    return float(np.median(np.linalg.norm(pts[:, None] - centers[None], axis=-1).min(axis=1)))
+    return np.linalg.norm(pts[:, None] - centers[None], axis=-1).min(axis=1)
+
+
+def scene_depth(points, camera_centers) -> float:
+    """Median distance from `points` to their nearest camera centre (the scene's depth scale)."""
+    return float(np.median(nearest_camera_distances(points, camera_centers, "binocular")))
 
 
 class BinocularConsistency(Technique):

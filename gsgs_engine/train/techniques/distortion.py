@@ -30,6 +30,7 @@ import torch
 
 from gsgs_engine import GsgsError
 from gsgs_engine.train.technique import StepContext, Technique
+from gsgs_engine.train.techniques.binocular import nearest_camera_distances
 
 DEFAULT_WEIGHT = 1.0  # the orbit recipe's (docs/sparse_techniques.md, "Session 46")
 DEFAULT_START_FRACTION = 0.2
@@ -48,14 +49,13 @@ def ray_depth_spread(alpha: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) ->
 
 def reference_depth(points, camera_centers, percentile: float = REFERENCE_PERCENTILE) -> float:
     """The `percentile` of the points' distance to their nearest camera centre (finite points; <= 20k sampled)."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    if len(pts) == 0:
-        raise GsgsError("distortion: the model has no finite Gaussian positions to measure the scene depth from")
-    if len(pts) > 20000:
-        pts = pts[np.linspace(0, len(pts) - 1, 20000).astype(int)]
-    centers = np.asarray(camera_centers, dtype=np.float64).reshape(-1, 3)
-    return float(np.percentile(np.linalg.norm(pts[:, None] - centers[None], axis=-1).min(axis=1), percentile))
+    return float(np.percentile(nearest_camera_distances(points, camera_centers, "distortion"), percentile))
+
+
+def moment_colors(z: torch.Tensor, z_ref: float) -> torch.Tensor:
+    """Per-Gaussian "colours" (s, s^2, 0) of s = z_ref / z, capped at MAX_DISPARITY: their composite is (S1, S2)."""
+    s = (z_ref / z.clamp_min(1e-6)).clamp(max=MAX_DISPARITY)
+    return torch.stack([s, s * s, torch.zeros_like(s)], dim=-1)
 
 
 def composite_moments(inputs: dict, camera, z_ref: float, backend: str):
@@ -66,16 +66,15 @@ def composite_moments(inputs: dict, camera, z_ref: float, backend: str):
     if opacities.dim() == 2:
         opacities = opacities[:, 0]
     sh_dc = inputs["sh"][:, :1]
+    black = torch.zeros(3, dtype=means.dtype, device=means.device)
     chosen = select_backend(backend, means.device, means.dtype)
-    if chosen == "cuda":
+    if chosen == "cuda":  # gsplat projects and composites in one call: z from the camera transform
         from gsgs_engine.render import cuda_backend
-        from gsgs_engine.render.project import project_gaussians
 
-        depths = project_gaussians(means, quats, scales, camera, sh=sh_dc, sh_degree=0).depths
-        s = (z_ref / depths.clamp_min(1e-6)).clamp(max=MAX_DISPARITY)
-        colors = torch.stack([s, s * s, torch.zeros_like(s)], dim=-1)
-        color, _, alpha, _, _ = cuda_backend.render_gsplat(means, quats, scales, opacities, colors, camera,
-                                                           torch.zeros(3, device=means.device), DEFAULT_NEAR, 1e10)
+        R = torch.as_tensor(camera.R, dtype=means.dtype, device=means.device)
+        z = means @ R[2] + float(camera.t[2])
+        color, _, alpha, _, _ = cuda_backend.render_gsplat(means, quats, scales, opacities, moment_colors(z, z_ref),
+                                                           camera, black, DEFAULT_NEAR, 1e10)
         return alpha, color[..., 0], color[..., 1]
     if chosen == "cpu":
         from gsgs_engine.render.project_cpu import project_gaussians_cpu
@@ -83,11 +82,8 @@ def composite_moments(inputs: dict, camera, z_ref: float, backend: str):
     else:
         from gsgs_engine.render.project import project_gaussians
         proj = project_gaussians(means, quats, scales, camera, sh=sh_dc, sh_degree=0)
-    s = (z_ref / proj.depths.clamp_min(1e-6)).clamp(max=MAX_DISPARITY)
-    colors = torch.stack([s, s * s, torch.zeros_like(s)], dim=-1)
-    color, _, alpha = rasterize(proj.means2d, proj.conics, colors, opacities, proj.depths, proj.radii,
-                                camera.width, camera.height, torch.zeros(3, dtype=means.dtype, device=means.device),
-                                backend=chosen)
+    color, _, alpha = rasterize(proj.means2d, proj.conics, moment_colors(proj.depths, z_ref), opacities, proj.depths,
+                                proj.radii, camera.width, camera.height, black, backend=chosen)
     return alpha, color[..., 0], color[..., 1]
 
 
@@ -128,10 +124,7 @@ class DepthDistortion(Technique):
         camera = ctx.camera if ctx.camera is not None else tr.train_views[ctx.view_index].camera
         if self.scale != 1.0:
             camera = camera.scaled(self.scale)
-        inputs = tr.gaussians_for(camera)
-        for t in tr.techniques:
-            inputs = t.render_inputs(ctx, inputs)
-        alpha, s1, s2 = composite_moments(inputs, camera, self.z_ref, tr.config.backend)
+        alpha, s1, s2 = composite_moments(tr.training_inputs(ctx, camera), camera, self.z_ref, tr.config.backend)
         mask = (alpha.detach() > self.min_alpha).to(alpha.dtype)
         spread = (ray_depth_spread(alpha, s1, s2) * mask).sum() / mask.sum().clamp_min(1.0)
         self.steps += 1
