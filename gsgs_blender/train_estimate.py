@@ -113,6 +113,10 @@ FORWARD_ABSGRAD_FACTOR = (184.0 + 186.3) / (172.9 + 175.9)
 # and after alternating twice on a quiet machine (2026-12-06, docs/sparse_techniques.md "Session 45"): 84.2 / 79.1 s
 # before, 90.3 / 116.5 s after (the VM's noise: the pairs' ratios are 1.07 and 1.47), so the sum's ratio.
 ORBIT_ATTRIBUTE_LR_FACTOR = (90.3 + 116.5) / (84.2 + 79.1)
+# ... and adds the depth distortion's half-size composite every 8th step (session 47; effect_plan.AUTO_ORBIT_TECHNIQUES):
+# lego auto at 1000 steps, the recipe without and with it alternating twice on a quiet machine (2026-12-06,
+# docs/sparse_techniques.md "Session 47"): 90.8 / 94.8 s without, 95.6 / 101.4 s with it.
+ORBIT_DISTORTION_FACTOR = (95.6 + 101.4) / (90.8 + 94.8)
 # ... and so does the forward-facing recipe below 3000 steps: LLFF cells of session 45 with them against session 44's
 # without, the same VM, one cell at a time (flower seeds 1-2, horns seeds 0-2; not a quiet pair: some of session 44's
 # cells ran beside other work, so the factor is if anything low): 1116.9 s against 826.7 s of training.
@@ -215,8 +219,8 @@ def estimate_seconds(iterations: int, width: int, height: int, resolution_scale:
         seconds = REFERENCES_CUDA[kind]
     if kind == "orbit" and iterations >= AUTO_LONG_STEPS:  # the shifted view at every step (effect_plan)
         seconds *= ORBIT_EVERY_STEP_FACTOR
-    elif kind == "orbit":  # ... and below it the raised colour, scale and rotation rates
-        seconds *= ORBIT_ATTRIBUTE_LR_FACTOR
+    elif kind == "orbit":  # ... and below it the raised colour, scale and rotation rates and the depth distortion
+        seconds *= ORBIT_ATTRIBUTE_LR_FACTOR * ORBIT_DISTORTION_FACTOR
     if kind == "forward" and generator != "auto":  # no absolute gradients
         seconds /= FORWARD_ABSGRAD_FACTOR
     if kind == "forward" and generator == "auto" and iterations >= AUTO_LONG_STEPS:  # ... the view at full size

@@ -29,15 +29,16 @@ preset trains longer. Since session 14 the 1000-step orbit recipe moves the mean
 Since session 45 the orbit recipe below 3000 steps also learns colour, scales and rotations at 3x 3DGS's rates
 (effect_plan.ATTRIBUTE_LR_SCALE): NeRF-synthetic seeds 0-2 26.95 -> 27.26 dB at 1000 steps, 23.97 -> 25.26 at 300;
 and so does the forward-facing recipe: LLFF 20.69 -> 20.85 dB at 1000 steps, about 1.35x the seconds, 18.92 -> 20.12
-at 300.
+at 300. Since session 47 the orbit recipe below 3000 steps adds the depth distortion every 8th step: NeRF-synthetic
+27.26 -> 27.40 dB at 1000 steps, 25.26 -> 25.41 at 300, for 1.06x the training seconds.
 Session 24 measured fast's 300 steps both ways on the protocols, seeds 0-2, 2-core CPU (docs/speed.md, "Session 24"):
 plain 3DGS NeRF-synthetic 19.86 +- 0.17 dB, LLFF 16.13 +- 0.05; `--prior auto` 24.13 +- 0.04 and 18.84 +- 0.03 (SSIM
 and LPIPS better too), for about 2x the wait on the orbits and 3.3-4.4x on the forward-facing scenes. Auto's 300 steps
 also beat plain 3DGS's 1000 (23.60 / 16.08 dB) in less time, so plain 3DGS is off the front on sparse captures and
 fast = 300 steps of the same recipe as balanced. What each preset measured (the add-on's tooltips read these lines;
 "a scene" = plan, initialisation, training and prior, not the evaluation; protocol cells, seeds 0-2):
-  fast  auto, 300 steps: NeRF-synthetic 8 views 25.26 dB in 20-37 s a scene (session 45: colour, scale and rotation rates x3), LLFF 3 views 20.12 dB (18.92 before; sessions 45-46, the same VM kind) in 59-85 s (2-core CPU; plain 3DGS, session 24: 19.86 / 16.13 dB in 16-29 s)
-  balanced  auto, 1000 steps: NeRF-synthetic 8 views 27.26 dB in 83-104 s a scene (session 45's VM), LLFF 3 views 20.85 dB in 212-259 s (2-core CPU, session 45's VM)
+  fast  auto, 300 steps: NeRF-synthetic 8 views 25.41 dB in 23-27 s a scene (session 47: depth distortion; 25.26 with session 45's rates x3 alone), LLFF 3 views 20.12 dB (18.92 before; sessions 45-46, the same VM kind) in 59-85 s (2-core CPU; plain 3DGS, session 24: 19.86 / 16.13 dB in 16-29 s)
+  balanced  auto, 1000 steps: NeRF-synthetic 8 views 27.40 dB in 85-104 s a scene (session 47, session 45's VM), LLFF 3 views 20.85 dB in 212-259 s (2-core CPU, session 45's VM)
   best  auto, 3000 steps: NeRF-synthetic 8 views 27.63 dB in 170-212 s a scene (2-core CPU); LLFF 3 views 21.24 dB, 21.20 over seeds 0-5, in 473-547 s of training a scene (2-core CPU)
 
 `apply_preset` fills a `gsgs train` argument namespace (flags the user left at their default

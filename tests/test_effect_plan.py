@@ -267,6 +267,7 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert "every second step" in few["techniques"].reason
     assert "dropout:max_rate=0.1" in AUTO_ORBIT_TECHNIQUES and "rate 0.1" in few["techniques"].reason  # session 23
     assert AUTO_ORBIT_TECHNIQUES[0] == "clone_split" and "clone / split" in few["techniques"].reason  # session 38
+    assert AUTO_ORBIT_TECHNIQUES[-1] == "distortion" and "depth distortion" in few["techniques"].reason  # session 47
     tc, pc = apply_effect_plan(few, TrainConfig(), AUTO)
     assert pc.techniques == list(AUTO_ORBIT_TECHNIQUES)
     # a long schedule (the best preset's 3000 steps): the shifted view at every step again, recorded as such
@@ -290,8 +291,8 @@ def test_techniques_under_auto_on_sparse_static_views_and_as_named_otherwise():
     assert front["rig"].value == "forward-facing" and front["techniques"].value == list(AUTO_FORWARD_TECHNIQUES)
     assert "density-guided" in front["techniques"].reason
     for recipe in (AUTO_FORWARD_TECHNIQUES, AUTO_ORBIT_TECHNIQUES):  # the same techniques, options changed, and
-        assert [t.split(":")[0] for t in recipe if not t.startswith(("absgrad", "clone_split"))] == list(
-            AUTO_TECHNIQUES)  # AbsGS's and the clone / split boundary's
+        assert [t.split(":")[0] for t in recipe if not t.startswith(("absgrad", "clone_split", "distortion"))] == list(
+            AUTO_TECHNIQUES)  # AbsGS's, the clone / split boundary's and the depth distortion's
     assert AUTO_FORWARD_TECHNIQUES[0] == "absgrad" and "absolute gradients" in front["techniques"].reason  # session 29
     assert apply_effect_plan(front, TrainConfig(), AUTO)[1].techniques == list(AUTO_FORWARD_TECHNIQUES)
     assert "binocular:scale=0.5" in AUTO_FORWARD_TECHNIQUES  # the shifted view at half size (measured at 1000 steps)

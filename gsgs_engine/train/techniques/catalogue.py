@@ -43,8 +43,8 @@ TECHNIQUES = {
                                  "SH bands from the top, DropAnSH-GS's SH dropout)"),
     "binocular": (BinocularConsistency, "shifted-camera disparity-warp self-consistency (Binocular3DGS)"),
     "distortion": (DepthDistortion, "depth distortion (Mip-NeRF 360, 2DGS): the variance of each training ray's "
-                                    "depth under its blend weights, weight=1 x, from start_fraction=0.2 of the run, "
-                                    "rendered at scale=0.5"),
+                                    "depth under its blend weights, weight=6 x, every=8 steps, from start_fraction=0.2 "
+                                    "of the run, rendered at scale=0.5"),
     "opacity_decay": (OpacityDecay, "opacity x0.995 per step, no opacity reset, densify to the end (Binocular3DGS)"),
     "coregularisation": (CoRegularisation, "a second field trained alongside, co-regularised at pseudo views and "
                                            "co-pruned (CoR-GS; about 2x the time; static scenes)"),
