@@ -45,6 +45,8 @@ row("the recipe at 1200 steps", "it1200", seeds=(0,))
 row("300 steps: the recipe (session 45)", "fastattr3")
 row("+ weight 3 every 4th step", "fdev4w3")
 row("+ weight 6 every 8th step", "fdev8w6")
+row("3000 steps: the long recipe (this session)", "L3kbase", seeds=(0,))
+row("+ distortion (weight 6 every 8th step)", "L3kdist", seeds=(0,))
 print()
 print("timing pairs, lego seed 0, seconds of training (run in this order, one at a time):")
 for tag in ("tbase1", "tdist1", "tbase2", "tdist2", "tbase3", "t8dist3", "tbase4", "t8dist4"):
