@@ -90,9 +90,8 @@ AUTO_FORWARD_MEASURED = ("density-guided dropout on a forward-facing rig: LLFF 3
 # On an object orbit the binocular shifted view is rendered every second step from its start (with the depth
 # distortion's half-size composite every 8th step, below, the recipe's extra renders there). NeRF-synthetic 8 views,
 # 1000 steps, CPU, seeds 0-2: 26.17 +- 0.05 -> 26.12 +- 0.07 dB (lego 24.46 -> 24.42, chair 27.87 -> 27.82; SSIM
-# and LPIPS equal to the third decimal), lego trained 1.28x faster
-# (201 -> 157 s, back to back on a quiet machine; docs/speed.md). Inward shells keep the shifted view every step
-# (not measured there).
+# and LPIPS equal to the third decimal), lego trained 1.28x faster (201 -> 157 s, back to back on a quiet machine;
+# docs/speed.md). Inward shells keep the shifted view every step (not measured there).
 # The orbit's dropout ends at rate 0.1, not DropGaussian's 0.2 (session 23): NeRF-synthetic 8 views, 1000 steps,
 # CPU, seeds 0-2, 26.84 +- 0.09 -> 26.97 +- 0.04 dB (lego 24.84 / 24.92 / 25.13 -> 25.20 / 25.14 / 25.14, chair
 # 28.81 / 28.59 / 28.73 -> 28.74 / 28.87 / 28.72; SSIM and LPIPS better); fewer Gaussians dropped leave a training
